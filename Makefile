@@ -1,0 +1,38 @@
+# Every set-up step of the project. `make demo` and `make test` are the README's two commands.
+PYTHON ?= python3
+VENV := .venv
+CARGO ?= cargo
+DEMO_BAG := bags/synth-hard
+
+.PHONY: all build demo test py-venv bench bags clean
+
+all: build
+
+build:
+	$(CARGO) build --release
+
+# Python readers (rosbags, mcap) and the reference evaluator's packages, for the test suite.
+py-venv: $(VENV)/.stamp
+$(VENV)/.stamp: scripts/requirements-eval.txt
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install --quiet --disable-pip-version-check -r scripts/requirements-eval.txt
+	touch $@
+
+# Main job on shipped data: replay a synthetic bag with the consistency rejector, then score it.
+demo: build
+	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo --method consistency
+	./target/release/angle-i2p eval $(DEMO_BAG) --est out/demo
+
+# All tests (unit, integration, Python-reader interop, evaluator agreement when ../shared is present).
+test: py-venv
+	ANGLE_I2P_PYTHON=$(abspath $(VENV))/bin/python $(CARGO) test --release --all-targets
+
+bench:
+	$(CARGO) bench
+
+# Regenerate the synthetic bags shipped in bags/ (deterministic seeds).
+bags: build
+	./scripts/make_bags.sh
+
+clean:
+	rm -rf target out $(VENV)

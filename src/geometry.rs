@@ -1,0 +1,318 @@
+//! Camera geometry: intrinsics, depth images, back-projection with a depth prior (eq. 2),
+//! surface normals and nearest neighbours. Pure math, no I/O.
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{Matrix3, Point2, Point3, SymmetricEigen, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Pinhole intrinsics of a camera image (`CameraInfo.k`), distortion-free.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Intrinsics {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Intrinsics {
+    /// The 3×3 camera matrix K.
+    pub fn matrix(&self) -> Matrix3<f64> {
+        Matrix3::new(self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0)
+    }
+
+    /// Projects a point in the camera frame to a pixel; `None` behind the camera.
+    pub fn project(&self, p: &Point3<f64>) -> Option<Point2<f64>> {
+        (p.z > 0.0).then(|| Point2::new(self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy))
+    }
+
+    /// π⁻¹(p, d, K): the camera-frame point at depth `depth` along pixel `pixel`'s ray.
+    pub fn back_project(&self, pixel: &Point2<f64>, depth: f64) -> Point3<f64> {
+        Point3::new((pixel.x - self.cx) / self.fx * depth, (pixel.y - self.cy) / self.fy * depth, depth)
+    }
+
+    /// The unit bearing of a pixel's ray.
+    pub fn bearing(&self, pixel: &Point2<f64>) -> Vector3<f64> {
+        Vector3::new((pixel.x - self.cx) / self.fx, (pixel.y - self.cy) / self.fy, 1.0).normalize()
+    }
+
+    /// Whether all parameters are finite and usable.
+    pub fn is_valid(&self) -> bool {
+        [self.fx, self.fy, self.cx, self.cy].iter().all(|v| v.is_finite())
+            && self.fx > 0.0
+            && self.fy > 0.0
+            && self.width > 0
+            && self.height > 0
+    }
+}
+
+/// What the values of a depth prior mean.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthKind {
+    /// Values grow with distance (affine-ambiguous depth).
+    #[default]
+    Depth,
+    /// Values are inverse depth / disparity (as many monocular networks output).
+    InverseDepth,
+}
+
+/// A single-channel depth image, row-major; non-finite or non-positive values are unknown.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthImage {
+    pub width: u32,
+    pub height: u32,
+    pub data: Vec<f32>,
+}
+
+impl DepthImage {
+    pub fn new(width: u32, height: u32, data: Vec<f32>) -> Self {
+        debug_assert_eq!(data.len(), width as usize * height as usize);
+        Self { width, height, data }
+    }
+
+    /// The value at integer pixel (u, v), if inside and known.
+    pub fn at(&self, u: i64, v: i64) -> Option<f32> {
+        if u < 0 || v < 0 || u >= self.width as i64 || v >= self.height as i64 {
+            return None;
+        }
+        let d = self.data[v as usize * self.width as usize + u as usize];
+        (d.is_finite() && d > 0.0).then_some(d)
+    }
+
+    /// Value at a pixel of a camera image of size `camera_width`×`camera_height`, rescaled to
+    /// this image's resolution and interpolated bilinearly over the known neighbours.
+    pub fn sample(&self, pixel: &Point2<f64>, camera_width: u32, camera_height: u32) -> Option<f64> {
+        let sx = self.width as f64 / camera_width as f64;
+        let sy = self.height as f64 / camera_height as f64;
+        // Pixel centres map to pixel centres across resolutions.
+        let x = (pixel.x + 0.5) * sx - 0.5;
+        let y = (pixel.y + 0.5) * sy - 0.5;
+        if !(x.is_finite() && y.is_finite()) {
+            return None;
+        }
+        let (x0, y0) = (x.floor() as i64, y.floor() as i64);
+        let (ax, ay) = (x - x0 as f64, y - y0 as f64);
+        let mut sum = 0.0;
+        let mut weight = 0.0;
+        for (du, dv, w) in [(0, 0, (1.0 - ax) * (1.0 - ay)), (1, 0, ax * (1.0 - ay)), (0, 1, (1.0 - ax) * ay), (1, 1, ax * ay)] {
+            if let Some(d) = self.at(x0 + du, y0 + dv) {
+                sum += w * d as f64;
+                weight += w;
+            }
+        }
+        (weight > 1e-9).then(|| sum / weight)
+    }
+}
+
+/// Eq. (2): back-projects each pixel with the prior's depth, `o_i = π⁻¹(p_i, d_i, K)`.
+/// Returns `None` for a pixel where the prior is unknown.
+pub fn back_project_with_prior(
+    intrinsics: &Intrinsics,
+    prior: &DepthImage,
+    kind: DepthKind,
+    pixels: impl IntoIterator<Item = Point2<f64>>,
+) -> Vec<Option<Point3<f64>>> {
+    pixels
+        .into_iter()
+        .map(|p| {
+            let value = prior.sample(&p, intrinsics.width, intrinsics.height)?;
+            let depth = match kind {
+                DepthKind::Depth => value,
+                DepthKind::InverseDepth => 1.0 / value,
+            };
+            (depth.is_finite() && depth > 0.0).then(|| intrinsics.back_project(&p, depth))
+        })
+        .collect()
+}
+
+/// Centroid of a point set (eq. 5); the origin for an empty set.
+pub fn centroid(points: &[Point3<f64>]) -> Point3<f64> {
+    if points.is_empty() {
+        return Point3::origin();
+    }
+    let sum = points.iter().fold(Vector3::zeros(), |acc, p| acc + p.coords);
+    Point3::from(sum / points.len() as f64)
+}
+
+/// A k-d tree over 3D points for k-nearest-neighbour queries.
+pub struct PointIndex {
+    tree: Option<ImmutableKdTree<f32, 3>>,
+    len: usize,
+}
+
+impl PointIndex {
+    pub fn new(points: &[Point3<f32>]) -> Self {
+        let entries: Vec<[f32; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
+        // Construction fails only for an empty set, which then answers no neighbours.
+        Self { tree: ImmutableKdTree::new_from_slice(&entries).ok(), len: points.len() }
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Indices of the `k` nearest points to `query`, nearest first.
+    pub fn nearest(&self, query: &Point3<f32>, k: usize) -> Vec<usize> {
+        let k = k.min(self.len);
+        let (Some(k), Some(tree)) = (std::num::NonZero::new(k), &self.tree) else { return Vec::new() };
+        tree.query(&[query.x, query.y, query.z])
+            .nearest_n::<SquaredEuclidean<f32>>(k)
+            .execute()
+            .into_iter()
+            .map(|n| n.item as usize)
+            .collect()
+    }
+}
+
+/// Unit normal of a neighbourhood by PCA (eigenvector of the smallest covariance eigenvalue),
+/// oriented so that it points towards `towards`. `None` for fewer than 3 points.
+pub fn pca_normal(neighbours: &[Point3<f64>], towards: &Point3<f64>) -> Option<Vector3<f64>> {
+    if neighbours.len() < 3 {
+        return None;
+    }
+    let c = centroid(neighbours);
+    let mut cov = Matrix3::zeros();
+    for p in neighbours {
+        let d = p - c;
+        cov += d * d.transpose();
+    }
+    let eig = SymmetricEigen::new(cov);
+    let (i, _) = eig.eigenvalues.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1))?;
+    let mut n: Vector3<f64> = eig.eigenvectors.column(i).into_owned();
+    if !n.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    if n.dot(&(towards - c)) < 0.0 {
+        n = -n;
+    }
+    Some(n.normalize())
+}
+
+/// Normals of `points`, each from its `k` nearest neighbours within `index` (over `cloud`),
+/// oriented towards `towards`. Degenerate neighbourhoods get a zero vector.
+pub fn normals_from_index(
+    index: &PointIndex,
+    cloud: &[Point3<f32>],
+    points: &[Point3<f64>],
+    k: usize,
+    towards: &Point3<f64>,
+) -> Vec<Vector3<f64>> {
+    let mut neighbours = Vec::with_capacity(k);
+    points
+        .iter()
+        .map(|p| {
+            neighbours.clear();
+            neighbours.extend(index.nearest(&p.cast::<f32>(), k).into_iter().map(|i| cloud[i].cast::<f64>()));
+            pca_normal(&neighbours, towards).unwrap_or_else(Vector3::zeros)
+        })
+        .collect()
+}
+
+/// Normals of the image cloud straight from the dense depth prior: the cross product of the
+/// back-projected horizontal and vertical neighbours of each pixel, oriented towards the camera.
+/// `depth_of` maps a prior value to depth (after any scale/shift alignment).
+pub fn prior_normals(
+    intrinsics: &Intrinsics,
+    prior: &DepthImage,
+    kind: DepthKind,
+    pixels: &[Point2<f64>],
+    depth_of: impl Fn(f64) -> f64,
+) -> Vec<Vector3<f64>> {
+    // One pixel of the prior, in camera pixels.
+    let step_u = intrinsics.width as f64 / prior.width as f64;
+    let step_v = intrinsics.height as f64 / prior.height as f64;
+    let lift = |p: Point2<f64>| -> Option<Point3<f64>> {
+        let value = prior.sample(&p, intrinsics.width, intrinsics.height)?;
+        let z = match kind {
+            DepthKind::Depth => depth_of(value),
+            DepthKind::InverseDepth => depth_of(1.0 / value),
+        };
+        (z.is_finite() && z > 0.0).then(|| intrinsics.back_project(&p, z))
+    };
+    pixels
+        .iter()
+        .map(|p| {
+            let pts = (
+                lift(Point2::new(p.x - step_u, p.y)),
+                lift(Point2::new(p.x + step_u, p.y)),
+                lift(Point2::new(p.x, p.y - step_v)),
+                lift(Point2::new(p.x, p.y + step_v)),
+            );
+            let (Some(l), Some(r), Some(u), Some(d)) = pts else { return Vector3::zeros() };
+            let n = (r - l).cross(&(d - u));
+            let norm = n.norm();
+            if !(norm > 1e-12) {
+                return Vector3::zeros();
+            }
+            let mut n = n / norm;
+            // Towards the camera at the origin.
+            if n.dot(&(-l.coords)) < 0.0 {
+                n = -n;
+            }
+            n
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn k() -> Intrinsics {
+        Intrinsics { fx: 525.0, fy: 525.0, cx: 320.0, cy: 240.0, width: 640, height: 480 }
+    }
+
+    #[test]
+    fn project_inverts_back_project() {
+        let px = Point2::new(100.25, 333.5);
+        let p = k().back_project(&px, 2.5);
+        let q = k().project(&p).unwrap();
+        assert!((q - px).norm() < 1e-9);
+        assert!((p.z - 2.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn half_resolution_prior_samples_constant_and_ramp() {
+        // Prior at half resolution whose value is its own column index.
+        let (w, h) = (320u32, 240u32);
+        let data = (0..h).flat_map(|_| (0..w).map(|u| u as f32 + 1.0)).collect();
+        let prior = DepthImage::new(w, h, data);
+        // Camera pixel 201 (centre 201.5) → prior x = 201.5/2 - 0.5 = 100.25 → value 101.25.
+        let d = prior.sample(&Point2::new(201.0, 100.0), 640, 480).unwrap();
+        assert!((d - 101.25).abs() < 1e-9, "{d}");
+    }
+
+    #[test]
+    fn unknown_prior_pixels_are_skipped() {
+        let prior = DepthImage::new(2, 1, vec![f32::NAN, 0.0]);
+        assert!(prior.sample(&Point2::new(0.0, 0.0), 2, 1).is_none());
+    }
+
+    #[test]
+    fn pca_normal_of_plane() {
+        let pts: Vec<_> = (0..5).flat_map(|i| (0..5).map(move |j| Point3::new(i as f64, j as f64, 3.0))).collect();
+        let n = pca_normal(&pts, &Point3::origin()).unwrap();
+        assert!((n - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-9);
+    }
+
+    #[test]
+    fn knn_finds_nearest_first() {
+        let pts: Vec<_> = (0..100).map(|i| Point3::new(i as f32, 0.0, 0.0)).collect();
+        let idx = PointIndex::new(&pts);
+        assert_eq!(idx.nearest(&Point3::new(41.2, 0.0, 0.0), 3), vec![41, 42, 40]);
+    }
+
+    #[test]
+    fn prior_normals_of_fronto_parallel_wall_face_camera() {
+        let prior = DepthImage::new(64, 48, vec![2.0; 64 * 48]);
+        let intr = Intrinsics { fx: 50.0, fy: 50.0, cx: 32.0, cy: 24.0, width: 64, height: 48 };
+        let n = prior_normals(&intr, &prior, DepthKind::Depth, &[Point2::new(30.0, 20.0)], |d| d);
+        assert!((n[0] - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-9, "{:?}", n[0]);
+    }
+}

@@ -1,0 +1,18 @@
+//! angle-i2p: reject outlier 2D–3D correspondences with angle-based spatial consistency
+//! (Angle-I2P) and localize a camera against a point map with robust PnP.
+//!
+//! Data flows one way: messages → [`frame::Frame`] → rejection → pose → messages.
+//! The core (`geometry`, `consistency`, `reject`, `pnp`, `pipeline`, `eval`) is pure and
+//! free of I/O; `msgs` and `bag` are the edges.
+
+pub mod bag;
+pub mod consistency;
+pub mod eval;
+pub mod frame;
+pub mod geometry;
+pub mod msgs;
+pub mod params;
+pub mod pipeline;
+pub mod pnp;
+pub mod reject;
+pub mod synth;
