@@ -1,1 +1,452 @@
-//! TODO(#2): consistency
+//! Pairwise spatial consistency between the image cloud (pixels back-projected with the depth
+//! prior) and the map cloud, and the alignment of the prior's unknown scale and shift.
+//!
+//! * [`angle_consistency`]: the paper's scale-invariant measure, eq. (5)–(7).
+//! * [`distance_consistency`]: the classic length-preserving measure (the paper's ablation), on an
+//!   image cloud aligned with [`estimate_scale_shift`].
+//! * [`estimate_scale`]: eq. (8); [`estimate_scale_shift`]: scale *and* shift of the prior, which
+//!   the paper lists as a limitation.
+//!
+//! Matrices are dense, row-major `n × n` `f32` with a zero diagonal, written into caller-owned
+//! buffers so a localizer can reuse them across frames.
+
+use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// A dense symmetric consistency matrix Θ (row-major, zero diagonal).
+#[derive(Clone, Debug, Default)]
+pub struct ConsistencyMatrix {
+    pub n: usize,
+    pub values: Vec<f32>,
+}
+
+impl ConsistencyMatrix {
+    /// Resizes to `n × n` (reusing the allocation) and zeroes the diagonal.
+    fn reset(&mut self, n: usize) {
+        self.n = n;
+        self.values.clear();
+        self.values.resize(n * n, 0.0);
+    }
+
+    pub fn row(&self, i: usize) -> &[f32] {
+        &self.values[i * self.n..(i + 1) * self.n]
+    }
+
+    pub fn get(&self, i: usize, j: usize) -> f32 {
+        self.values[i * self.n + j]
+    }
+}
+
+/// Eq. (5)–(7): angle-based spatial consistency.
+///
+/// Both clouds are centred on their (optionally `weights`-weighted) centroids, eq. (5); for each
+/// pair the cosines of the angle between centred vectors are compared, eq. (6),
+/// δ_ij = ||cos α^I_ij| − |cos α^P_ij||, and θ_ij = [1 − δ²_ij / σ²_d]₊, eq. (7).
+/// θ is invariant to scaling the image cloud (the monocular prior's unknown scale).
+pub fn angle_consistency(
+    image: &[Point3<f64>],
+    map: &[Point3<f64>],
+    weights: Option<&[f64]>,
+    sigma_d: f64,
+    out: &mut ConsistencyMatrix,
+) {
+    let n = image.len().min(map.len());
+    out.reset(n);
+    let unit_i = centred_unit_vectors(&image[..n], weights);
+    let unit_p = centred_unit_vectors(&map[..n], weights);
+    let inv_sigma2 = (1.0 / (sigma_d * sigma_d)) as f32;
+    for i in 0..n {
+        let (oi, pi) = (unit_i[i], unit_p[i]);
+        for j in (i + 1)..n {
+            let cos_i = oi.dot(&unit_i[j]).abs();
+            let cos_p = pi.dot(&unit_p[j]).abs();
+            let delta = cos_i - cos_p;
+            let theta = (1.0 - delta * delta * inv_sigma2).max(0.0);
+            out.values[i * n + j] = theta;
+            out.values[j * n + i] = theta;
+        }
+    }
+}
+
+/// Unit vectors from the (weighted) centroid, eq. (5); a point at the centroid gets zero.
+fn centred_unit_vectors(points: &[Point3<f64>], weights: Option<&[f64]>) -> Vec<Vector3<f32>> {
+    let c = weighted_centroid(points, weights);
+    points
+        .iter()
+        .map(|p| {
+            let v = p - c;
+            let norm = v.norm();
+            if norm > 1e-12 { (v / norm).cast::<f32>() } else { Vector3::zeros() }
+        })
+        .collect()
+}
+
+fn weighted_centroid(points: &[Point3<f64>], weights: Option<&[f64]>) -> Point3<f64> {
+    let mut sum = Vector3::zeros();
+    let mut total = 0.0;
+    for (k, p) in points.iter().enumerate() {
+        let w = weights.map_or(1.0, |w| w[k]);
+        sum += p.coords * w;
+        total += w;
+    }
+    if total > 0.0 { Point3::from(sum / total) } else { Point3::origin() }
+}
+
+/// Distance-based spatial consistency: θ_ij = [1 − (|‖o_i − o_j‖ − ‖q_i − q_j‖| / σ_ij)²]₊
+/// with σ_ij = `sigma_abs` + `sigma_rel`·‖q_i − q_j‖ (a monocular prior's error grows with
+/// distance). Needs an image cloud in metres, see [`estimate_scale_shift`].
+pub fn distance_consistency(
+    image: &[Point3<f64>],
+    map: &[Point3<f64>],
+    sigma_abs: f64,
+    sigma_rel: f64,
+    out: &mut ConsistencyMatrix,
+) {
+    let n = image.len().min(map.len());
+    out.reset(n);
+    let img: Vec<Vector3<f32>> = image[..n].iter().map(|p| p.coords.cast()).collect();
+    let mp: Vec<Vector3<f32>> = map[..n].iter().map(|p| p.coords.cast()).collect();
+    let (sa, sr) = (sigma_abs as f32, sigma_rel as f32);
+    for i in 0..n {
+        for j in (i + 1)..n {
+            let d_img = (img[i] - img[j]).norm();
+            let d_map = (mp[i] - mp[j]).norm();
+            let delta = (d_img - d_map) / (sa + sr * d_map);
+            let theta = (1.0 - delta * delta).max(0.0);
+            out.values[i * n + j] = theta;
+            out.values[j * n + i] = theta;
+        }
+    }
+}
+
+/// Eq. (8): s_est = (1/N) Σ ‖o_i − o_c‖ / ‖p_i − p_c‖, the mean ratio of distances to the
+/// centroids. Returns the factor that maps the *map* cloud's size onto the image cloud's,
+/// as in the paper; the image cloud in map units is `o / s_est`.
+pub fn estimate_scale(image: &[Point3<f64>], map: &[Point3<f64>]) -> Option<f64> {
+    let n = image.len().min(map.len());
+    if n < 2 {
+        return None;
+    }
+    let (oc, pc) = (weighted_centroid(&image[..n], None), weighted_centroid(&map[..n], None));
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (o, p) in image[..n].iter().zip(&map[..n]) {
+        let lp = (p - pc).norm();
+        if lp > 1e-9 {
+            sum += (o - oc).norm() / lp;
+            count += 1;
+        }
+    }
+    (count > 0 && sum > 0.0).then(|| sum / count as f64)
+}
+
+/// Affine alignment of the depth prior: metric depth ≈ `scale`·prior + `shift` (prior in
+/// depth units, i.e. after inverting an inverse-depth prior).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ScaleShift {
+    pub scale: f64,
+    pub shift: f64,
+    /// How many sampled pairs agreed with the estimate (a confidence, not a probability).
+    pub support: usize,
+}
+
+impl ScaleShift {
+    pub const IDENTITY: Self = Self { scale: 1.0, shift: 0.0, support: 0 };
+
+    pub fn depth(&self, prior_depth: f64) -> f64 {
+        self.scale * prior_depth + self.shift
+    }
+}
+
+/// Parameters of [`estimate_scale_shift`].
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ScaleShiftParams {
+    /// Neighbours per correspondence in the image, whose pairs vote (local pairs keep their
+    /// length even inside a wrongly placed but rigid patch).
+    pub local_neighbours: usize,
+    /// Random global pairs that vote as well.
+    pub global_pairs: usize,
+    /// Shifts tried, as a fraction of the median prior depth: −range..=range.
+    pub shift_range: f64,
+    pub shift_steps: usize,
+    /// Width of the voting window on log(scale).
+    pub log_scale_window: f64,
+    /// Pairs shorter than this on the map (metres) do not vote.
+    pub min_pair_length: f64,
+    /// Gauss–Newton refinement rounds on the agreeing pairs.
+    pub refine_iterations: usize,
+    pub seed: u64,
+}
+
+impl Default for ScaleShiftParams {
+    fn default() -> Self {
+        Self {
+            local_neighbours: 10,
+            global_pairs: 8000,
+            shift_range: 0.6,
+            shift_steps: 25,
+            log_scale_window: 0.06,
+            min_pair_length: 0.05,
+            refine_iterations: 5,
+            seed: 0x5eed,
+        }
+    }
+}
+
+/// Estimates scale and shift of a depth prior from putative correspondences, robust to a
+/// large share of outliers: for each candidate shift t, every voting pair (i, j) proposes the
+/// scale ‖q_i − q_j‖ / ‖(d_i + t)b_i − (d_j + t)b_j‖ (b = the pixel's ray with z = 1, d = prior
+/// depth); the shift whose proposals agree most (densest window of log-scale) wins, then a
+/// Gauss–Newton fit of (s, t) on the agreeing pairs refines it.
+///
+/// `rays[i]` is pixel i's ray scaled to z = 1, `prior_depth[i]` its prior depth, `pixel_pairs`
+/// the local pairs (e.g. image-space kNN). Returns `None` when nothing agrees.
+pub fn estimate_scale_shift(
+    rays: &[Vector3<f64>],
+    prior_depth: &[f64],
+    map: &[Point3<f64>],
+    local_pairs: &[(u32, u32)],
+    params: &ScaleShiftParams,
+) -> Option<ScaleShift> {
+    let n = rays.len().min(prior_depth.len()).min(map.len());
+    if n < 3 {
+        return None;
+    }
+    let mut pairs: Vec<(u32, u32)> = local_pairs.iter().copied().filter(|&(i, j)| i != j && (i as usize) < n && (j as usize) < n).collect();
+    let mut rng = SplitMix64(params.seed);
+    for _ in 0..params.global_pairs {
+        let i = rng.below(n) as u32;
+        let j = rng.below(n) as u32;
+        if i != j {
+            pairs.push((i, j));
+        }
+    }
+    let map_len: Vec<f64> = pairs.iter().map(|&(i, j)| (map[i as usize] - map[j as usize]).norm()).collect();
+    let median_depth = median(prior_depth[..n].iter().copied().filter(|d| d.is_finite() && *d > 0.0).collect())?;
+
+    let mut log_ratio = Vec::with_capacity(pairs.len());
+    let mut best: Option<(usize, f64, f64)> = None; // (votes, scale, shift in prior units)
+    let steps = params.shift_steps.max(1);
+    for k in 0..steps {
+        let frac = if steps == 1 { 0.0 } else { -params.shift_range + 2.0 * params.shift_range * k as f64 / (steps - 1) as f64 };
+        let t = frac * median_depth;
+        log_ratio.clear();
+        for (p, &(i, j)) in pairs.iter().enumerate() {
+            let (i, j) = (i as usize, j as usize);
+            let (di, dj) = (prior_depth[i] + t, prior_depth[j] + t);
+            if map_len[p] < params.min_pair_length || di <= 0.0 || dj <= 0.0 {
+                continue;
+            }
+            let img_len = (rays[i] * di - rays[j] * dj).norm();
+            if img_len > 1e-9 {
+                log_ratio.push((map_len[p] / img_len).ln());
+            }
+        }
+        if let Some((votes, centre)) = densest_window(&mut log_ratio, params.log_scale_window) {
+            if best.is_none_or(|(v, _, _)| votes > v) {
+                best = Some((votes, centre.exp(), t));
+            }
+        }
+    }
+    let (votes, scale, t) = best?;
+    let mut estimate = ScaleShift { scale, shift: scale * t, support: votes };
+    refine_scale_shift(rays, prior_depth, map, &pairs, &map_len, params, &mut estimate);
+    (estimate.scale.is_finite() && estimate.scale > 0.0 && estimate.shift.is_finite()).then_some(estimate)
+}
+
+/// Gauss–Newton on (s, t) minimising Σ (‖(s d_i + t) b_i − (s d_j + t) b_j‖ − ‖q_i − q_j‖)² over
+/// the pairs that agree with the current estimate (relative residual below the vote window).
+fn refine_scale_shift(
+    rays: &[Vector3<f64>],
+    prior_depth: &[f64],
+    map: &[Point3<f64>],
+    pairs: &[(u32, u32)],
+    map_len: &[f64],
+    params: &ScaleShiftParams,
+    est: &mut ScaleShift,
+) {
+    let _ = map;
+    let tol = params.log_scale_window;
+    for _ in 0..params.refine_iterations {
+        let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut used = 0usize;
+        for (p, &(i, j)) in pairs.iter().enumerate() {
+            let (i, j) = (i as usize, j as usize);
+            if map_len[p] < params.min_pair_length {
+                continue;
+            }
+            let (zi, zj) = (est.depth(prior_depth[i]), est.depth(prior_depth[j]));
+            if zi <= 0.0 || zj <= 0.0 {
+                continue;
+            }
+            let diff = rays[i] * zi - rays[j] * zj;
+            let len = diff.norm();
+            if len < 1e-9 {
+                continue;
+            }
+            let r = len - map_len[p];
+            if r.abs() > tol * map_len[p] {
+                continue;
+            }
+            let js = diff.dot(&(rays[i] * prior_depth[i] - rays[j] * prior_depth[j])) / len;
+            let jt = diff.dot(&(rays[i] - rays[j])) / len;
+            a11 += js * js;
+            a12 += js * jt;
+            a22 += jt * jt;
+            b1 += js * r;
+            b2 += jt * r;
+            used += 1;
+        }
+        let det = a11 * a22 - a12 * a12;
+        if used < 3 || det.abs() < 1e-12 {
+            break;
+        }
+        let ds = (a22 * b1 - a12 * b2) / det;
+        let dt = (a11 * b2 - a12 * b1) / det;
+        est.scale -= ds;
+        est.shift -= dt;
+        est.support = used;
+        if ds.abs() < 1e-6 * est.scale.abs() && dt.abs() < 1e-6 {
+            break;
+        }
+    }
+}
+
+/// The densest window of width `w` in `values` (sorted in place): (count, median inside).
+fn densest_window(values: &mut [f64], w: f64) -> Option<(usize, f64)> {
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_unstable_by(f64::total_cmp);
+    let (mut best, mut best_start, mut end) = (0usize, 0usize, 0usize);
+    for start in 0..values.len() {
+        while end < values.len() && values[end] <= values[start] + w {
+            end += 1;
+        }
+        if end - start > best {
+            best = end - start;
+            best_start = start;
+        }
+    }
+    Some((best, values[best_start + best / 2]))
+}
+
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(*m)
+}
+
+/// A tiny deterministic generator for pair sampling (SplitMix64).
+struct SplitMix64(u64);
+
+impl SplitMix64 {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    fn below(&mut self, n: usize) -> usize {
+        ((self.next() >> 11) as f64 / (1u64 << 53) as f64 * n as f64) as usize % n.max(1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    use proptest::prelude::*;
+
+    fn cloud(seed: u64, n: usize) -> Vec<Point3<f64>> {
+        let mut rng = SplitMix64(seed);
+        let mut u = || rng.next() as f64 / u64::MAX as f64;
+        (0..n).map(|_| Point3::new(u() * 4.0 - 2.0, u() * 3.0 - 1.5, 1.0 + u() * 4.0)).collect()
+    }
+
+    fn pose() -> Isometry3<f64> {
+        Isometry3::from_parts(Translation3::new(0.3, -1.2, 2.0), UnitQuaternion::from_euler_angles(0.3, -0.5, 1.1))
+    }
+
+    proptest! {
+        #[test]
+        fn angle_theta_is_invariant_to_scaling_the_image_cloud(seed in 0u64..1000, scale in 0.05f64..20.0) {
+            let map = cloud(seed, 30);
+            let image: Vec<_> = map.iter().map(|p| pose().inverse_transform_point(p)).collect();
+            let scaled: Vec<_> = image.iter().map(|p| Point3::from(p.coords * scale)).collect();
+            let (mut a, mut b) = (ConsistencyMatrix::default(), ConsistencyMatrix::default());
+            angle_consistency(&image, &map, None, 0.1, &mut a);
+            angle_consistency(&scaled, &map, None, 0.1, &mut b);
+            for (x, y) in a.values.iter().zip(&b.values) {
+                prop_assert!((x - y).abs() < 1e-4);
+            }
+        }
+    }
+
+    #[test]
+    fn angle_theta_is_one_for_a_rigid_copy_and_low_for_a_shuffled_one() {
+        let map = cloud(7, 40);
+        let image: Vec<_> = map.iter().map(|p| pose().inverse_transform_point(p)).collect();
+        let mut m = ConsistencyMatrix::default();
+        angle_consistency(&image, &map, None, 0.1, &mut m);
+        let off_diag: f32 = (0..40).flat_map(|i| (0..40).filter(move |&j| j != i).map(move |j| (i, j))).map(|(i, j)| m.get(i, j)).sum();
+        assert!((off_diag / (40.0 * 39.0) - 1.0).abs() < 1e-4);
+        let mut shuffled = image.clone();
+        shuffled.reverse();
+        angle_consistency(&shuffled, &map, None, 0.1, &mut m);
+        let mean: f32 = m.values.iter().sum::<f32>() / (40.0 * 39.0);
+        assert!(mean < 0.6, "{mean}");
+    }
+
+    #[test]
+    fn distance_theta_separates_inliers_from_outliers() {
+        let map = cloud(3, 50);
+        let mut image: Vec<_> = map.iter().map(|p| pose().inverse_transform_point(p)).collect();
+        for p in image.iter_mut().skip(40) {
+            *p = Point3::new(-p.y, p.x + 1.0, p.z * 0.5);
+        }
+        let mut m = ConsistencyMatrix::default();
+        distance_consistency(&image, &map, 0.02, 0.05, &mut m);
+        assert_eq!(m.get(0, 1), 1.0);
+        let outlier_support: f32 = m.row(45).iter().sum();
+        let inlier_support: f32 = m.row(5).iter().sum();
+        assert!(inlier_support > 3.0 * outlier_support, "{inlier_support} vs {outlier_support}");
+    }
+
+    #[test]
+    fn eq8_scale_recovers_a_known_scale() {
+        let map = cloud(11, 60);
+        let image: Vec<_> = map.iter().map(|p| Point3::from(pose().inverse_transform_point(p).coords * 0.37)).collect();
+        let s = estimate_scale(&image, &map).unwrap();
+        assert!((s - 0.37).abs() < 1e-9, "{s}");
+    }
+
+    #[test]
+    fn scale_and_shift_are_recovered_with_outliers() {
+        // Camera-frame points; prior depth d = (z − t)/s.
+        let (s_true, t_true) = (1.7, 0.45);
+        let cam = cloud(5, 300);
+        let map: Vec<_> = cam.iter().map(|p| pose().transform_point(p)).collect();
+        let rays: Vec<_> = cam.iter().map(|p| p.coords / p.z).collect();
+        let mut prior: Vec<_> = cam.iter().map(|p| (p.z - t_true) / s_true).collect();
+        // 60 % outliers: random wrong depths.
+        let mut rng = SplitMix64(99);
+        for d in prior.iter_mut().take(180) {
+            *d = 0.2 + 3.0 * rng.next() as f64 / u64::MAX as f64;
+        }
+        let est = estimate_scale_shift(&rays, &prior, &map, &[], &ScaleShiftParams::default()).unwrap();
+        assert!((est.scale - s_true).abs() < 0.02 * s_true, "{est:?}");
+        assert!((est.shift - t_true).abs() < 0.03, "{est:?}");
+    }
+
+    #[test]
+    fn densest_window_finds_the_mode() {
+        let mut v = vec![0.0, 5.0, 5.01, 5.02, 9.0, 5.03];
+        assert_eq!(densest_window(&mut v, 0.05).unwrap().0, 4);
+    }
+}

@@ -1,1 +1,246 @@
-//! TODO(#2): eval
+//! Localization metrics of the paper's section 4, defined exactly as the reference evaluator
+//! `shared/tools/baseline_opencv.py` computes them:
+//!
+//! * IR — inlier ratio of (kept) correspondences: a correspondence is an inlier when its pixel,
+//!   lifted with the ground-truth depth (nearest pixel, 0 = unknown) and the ground-truth pose,
+//!   lies within 5 cm of its map point; only pixels with ground-truth depth count.
+//! * RR — registration recall: the share of frames whose RMSE, over the ground-truth-depth
+//!   points of the frame (every 4th pixel) moved by the ground-truth vs the estimated pose, is
+//!   below 0.1 m.
+//! * MRE / MTE — mean rotation (degrees) and translation (metres) errors over the frames that
+//!   have an estimate; medians too.
+
+use nalgebra::{Isometry3, Matrix3, Vector3};
+use serde::Serialize;
+
+use crate::frame::Correspondence;
+use crate::geometry::{DepthImage, Intrinsics};
+
+/// Inlier distance of the IR metric (metres).
+pub const INLIER_THRESHOLD: f64 = 0.05;
+/// RMSE under which a frame counts as registered (metres).
+pub const RECALL_THRESHOLD: f64 = 0.1;
+/// Pixel stride of the RMSE's point sample.
+const RMSE_STRIDE: usize = 4;
+
+/// Per correspondence: (is an inlier, has ground-truth depth).
+pub fn inlier_mask(
+    correspondences: &[Correspondence],
+    k: &Intrinsics,
+    gt_pose: &Isometry3<f64>,
+    gt_depth: &DepthImage,
+) -> Vec<(bool, bool)> {
+    let (w, h) = (gt_depth.width as i64, gt_depth.height as i64);
+    correspondences
+        .iter()
+        .map(|c| {
+            // numpy's round: half to even, then clipped into the image.
+            let u = (c.pixel.x.round_ties_even() as i64).clamp(0, w - 1);
+            let v = (c.pixel.y.round_ties_even() as i64).clamp(0, h - 1);
+            let z = gt_depth.data[(v * w + u) as usize] as f64;
+            if !(z > 0.0) {
+                return (false, false);
+            }
+            let p = nalgebra::Point3::new((c.pixel.x - k.cx) * z / k.fx, (c.pixel.y - k.cy) * z / k.fy, z);
+            ((gt_pose.transform_point(&p) - c.point).norm() < INLIER_THRESHOLD, true)
+        })
+        .collect()
+}
+
+/// The inlier ratio over correspondences with ground-truth depth (0 when none has).
+pub fn inlier_ratio(mask: &[(bool, bool)]) -> f64 {
+    let valid = mask.iter().filter(|m| m.1).count();
+    if valid == 0 {
+        return 0.0;
+    }
+    mask.iter().filter(|m| m.0 && m.1).count() as f64 / valid as f64
+}
+
+/// Errors of an estimated camera-to-map pose against the ground truth.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct PoseErrors {
+    pub rotation_deg: f64,
+    pub translation_m: f64,
+    /// RMSE of the frame's ground-truth-depth points under both poses.
+    pub rmse_m: f64,
+}
+
+pub fn pose_errors(est: &Isometry3<f64>, gt: &Isometry3<f64>, k: &Intrinsics, gt_depth: &DepthImage) -> PoseErrors {
+    let (r_est, r_gt) = (est.rotation.to_rotation_matrix().into_inner(), gt.rotation.to_rotation_matrix().into_inner());
+    let d_r: Matrix3<f64> = r_est.transpose() * r_gt;
+    let rotation_deg = ((d_r.trace() - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
+    let d_t: Vector3<f64> = gt.translation.vector - est.translation.vector;
+    let translation_m = d_t.norm();
+    let diff_r = r_gt - r_est;
+    let (mut sum, mut count) = (0.0, 0usize);
+    let w = gt_depth.width as usize;
+    for v in (0..gt_depth.height as usize).step_by(RMSE_STRIDE) {
+        for u in (0..w).step_by(RMSE_STRIDE) {
+            let z = gt_depth.data[v * w + u] as f64;
+            if z == 0.0 || !z.is_finite() {
+                continue;
+            }
+            let p = Vector3::new((u as f64 - k.cx) * z / k.fx, (v as f64 - k.cy) * z / k.fy, z);
+            sum += (diff_r * p + d_t).norm_squared();
+            count += 1;
+        }
+    }
+    let rmse_m = if count > 0 { (sum / count as f64).sqrt() } else { f64::NAN };
+    PoseErrors { rotation_deg, translation_m, rmse_m }
+}
+
+/// One evaluated frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameMetrics {
+    pub stamp: i64,
+    pub inlier_ratio: f64,
+    pub errors: Option<PoseErrors>,
+    pub ms: Option<f64>,
+}
+
+impl FrameMetrics {
+    pub fn registered(&self) -> bool {
+        self.errors.is_some_and(|e| e.rmse_m < RECALL_THRESHOLD)
+    }
+}
+
+/// A bag's scores, as the reference evaluator summarises them (percentages for IR and RR).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+#[serde(rename_all = "UPPERCASE")]
+pub struct Summary {
+    #[serde(rename = "frames")]
+    pub frames: usize,
+    pub ir: f64,
+    pub rr: f64,
+    pub mre: Option<f64>,
+    pub mte: Option<f64>,
+    #[serde(rename = "MedRE")]
+    pub med_re: Option<f64>,
+    #[serde(rename = "MedTE")]
+    pub med_te: Option<f64>,
+    /// Mean and median time per frame when the run recorded it.
+    #[serde(rename = "ms_per_frame")]
+    pub ms_per_frame: Option<f64>,
+    #[serde(rename = "median_ms")]
+    pub median_ms: Option<f64>,
+}
+
+pub fn summarize(rows: &[FrameMetrics]) -> Summary {
+    let n = rows.len();
+    let with_pose: Vec<&PoseErrors> = rows.iter().filter_map(|r| r.errors.as_ref()).collect();
+    let rot: Vec<f64> = with_pose.iter().map(|e| e.rotation_deg).collect();
+    let trans: Vec<f64> = with_pose.iter().map(|e| e.translation_m).collect();
+    let ms: Vec<f64> = rows.iter().filter_map(|r| r.ms).collect();
+    Summary {
+        frames: n,
+        ir: if n > 0 { 100.0 * rows.iter().map(|r| r.inlier_ratio).sum::<f64>() / n as f64 } else { 0.0 },
+        rr: 100.0 * rows.iter().filter(|r| r.registered()).count() as f64 / n.max(1) as f64,
+        mre: mean(&rot),
+        mte: mean(&trans),
+        med_re: median(&rot),
+        med_te: median(&trans),
+        ms_per_frame: mean(&ms),
+        median_ms: median(&ms),
+    }
+}
+
+pub fn mean(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// The median as numpy computes it (mean of the two middle values for an even count).
+pub fn median(v: &[f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let m = s.len() / 2;
+    Some(if s.len() % 2 == 0 { (s[m - 1] + s[m]) / 2.0 } else { s[m] })
+}
+
+/// A plain-text table of named summaries.
+pub fn format_table(rows: &[(String, Summary)]) -> String {
+    let fmt = |v: Option<f64>, p: usize| v.map_or_else(|| "-".to_string(), |x| format!("{x:.p$}"));
+    let width = rows.iter().map(|(name, _)| name.len()).max().unwrap_or(6).max(6);
+    let mut out = format!(
+        "{:<width$}  {:>6}  {:>6}  {:>6}  {:>8}  {:>7}  {:>7}  {:>8}  {:>9}\n",
+        "method", "frames", "IR %", "RR %", "MRE deg", "MTE m", "MedRE", "MedTE m", "ms/frame"
+    );
+    for (name, s) in rows {
+        out += &format!(
+            "{:<width$}  {:>6}  {:>6.2}  {:>6.2}  {:>8}  {:>7}  {:>7}  {:>8}  {:>9}\n",
+            name,
+            s.frames,
+            s.ir,
+            s.rr,
+            fmt(s.mre, 3),
+            fmt(s.mte, 3),
+            fmt(s.med_re, 3),
+            fmt(s.med_te, 3),
+            match (s.median_ms, s.ms_per_frame) {
+                (Some(med), Some(mean)) => format!("{med:.2} ({mean:.2})"),
+                _ => "-".into(),
+            },
+        );
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Point2, Point3, Translation3, UnitQuaternion};
+
+    fn k() -> Intrinsics {
+        Intrinsics { fx: 100.0, fy: 100.0, cx: 32.0, cy: 24.0, width: 64, height: 48 }
+    }
+
+    #[test]
+    fn identical_poses_have_zero_error_and_register() {
+        let depth = DepthImage::new(64, 48, vec![2.0; 64 * 48]);
+        let pose = Isometry3::from_parts(Translation3::new(1.0, 2.0, 3.0), UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3));
+        let e = pose_errors(&pose, &pose, &k(), &depth);
+        assert!(e.rotation_deg < 1e-6 && e.translation_m < 1e-12 && e.rmse_m < 1e-12);
+    }
+
+    #[test]
+    fn translation_offset_is_the_rmse() {
+        let depth = DepthImage::new(64, 48, vec![2.0; 64 * 48]);
+        let gt = Isometry3::identity();
+        let est = Isometry3::translation(0.0, 0.0, 0.2);
+        let e = pose_errors(&est, &gt, &k(), &depth);
+        assert!((e.rmse_m - 0.2).abs() < 1e-12 && (e.translation_m - 0.2).abs() < 1e-12);
+        let row = FrameMetrics { stamp: 0, inlier_ratio: 0.5, errors: Some(e), ms: Some(1.0) };
+        assert!(!row.registered());
+    }
+
+    #[test]
+    fn inliers_within_five_centimetres() {
+        let depth = DepthImage::new(64, 48, vec![2.0; 64 * 48]);
+        let pose = Isometry3::identity();
+        let px = Point2::new(10.0, 20.0);
+        let on = k().back_project(&px, 2.0);
+        let c = |p: Point3<f64>| Correspondence { pixel: px, point: p, score: 1.0 };
+        let m = inlier_mask(&[c(on), c(on + Vector3::new(0.0, 0.06, 0.0))], &k(), &pose, &depth);
+        assert_eq!(m, vec![(true, true), (false, true)]);
+        assert_eq!(inlier_ratio(&m), 0.5);
+    }
+
+    #[test]
+    fn summary_matches_reference_conventions() {
+        let e = |r: f64, rmse: f64| Some(PoseErrors { rotation_deg: r, translation_m: r / 10.0, rmse_m: rmse });
+        let rows = vec![
+            FrameMetrics { stamp: 0, inlier_ratio: 0.5, errors: e(1.0, 0.05), ms: Some(2.0) },
+            FrameMetrics { stamp: 1, inlier_ratio: 0.0, errors: None, ms: Some(4.0) },
+            FrameMetrics { stamp: 2, inlier_ratio: 1.0, errors: e(3.0, 0.5), ms: Some(3.0) },
+        ];
+        let s = summarize(&rows);
+        assert_eq!(s.frames, 3);
+        assert!((s.ir - 50.0).abs() < 1e-12);
+        assert!((s.rr - 100.0 / 3.0).abs() < 1e-12);
+        assert_eq!(s.mre, Some(2.0));
+        assert_eq!(s.med_re, Some(2.0));
+        assert_eq!(s.median_ms, Some(3.0));
+    }
+}

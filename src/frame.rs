@@ -58,3 +58,357 @@ pub struct MapCloud {
     pub frame_id: String,
     pub points: Vec<Point3<f32>>,
 }
+
+/// The kinds of message that make up a [`Frame`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum PartKind {
+    CameraInfo,
+    Correspondences,
+    DepthPrior,
+    Image,
+    GroundTruthPose,
+    GroundTruthDepth,
+}
+
+impl PartKind {
+    pub const ALL: [PartKind; 6] = [
+        PartKind::CameraInfo,
+        PartKind::Correspondences,
+        PartKind::DepthPrior,
+        PartKind::Image,
+        PartKind::GroundTruthPose,
+        PartKind::GroundTruthDepth,
+    ];
+
+    /// Parts without which no [`Frame`] can be built.
+    pub const REQUIRED: [PartKind; 2] = [PartKind::CameraInfo, PartKind::Correspondences];
+
+    /// The role name (as in the topic map): `camera_info`, `correspondences`, ….
+    pub fn name(self) -> &'static str {
+        match self {
+            PartKind::CameraInfo => "camera_info",
+            PartKind::Correspondences => "correspondences",
+            PartKind::DepthPrior => "depth_prior",
+            PartKind::Image => "image",
+            PartKind::GroundTruthPose => "ground_truth_pose",
+            PartKind::GroundTruthDepth => "ground_truth_depth",
+        }
+    }
+
+    fn bit(self) -> u8 {
+        1 << self as u8
+    }
+}
+
+/// One decoded message that belongs to the frame at `stamp`.
+#[derive(Clone, Debug)]
+pub enum FramePart {
+    CameraInfo {
+        stamp: Stamp,
+        intrinsics: Intrinsics,
+    },
+    /// `camera_frame_id` is the correspondences' `header.frame_id`.
+    Correspondences {
+        stamp: Stamp,
+        camera_frame_id: String,
+        map_frame_id: String,
+        correspondences: Vec<Correspondence>,
+    },
+    DepthPrior {
+        stamp: Stamp,
+        depth: DepthImage,
+    },
+    Image {
+        stamp: Stamp,
+        image: EncodedImage,
+    },
+    GroundTruthPose {
+        stamp: Stamp,
+        pose: Isometry3<f64>,
+    },
+    GroundTruthDepth {
+        stamp: Stamp,
+        depth: DepthImage,
+    },
+}
+
+impl FramePart {
+    pub fn stamp(&self) -> Stamp {
+        match self {
+            FramePart::CameraInfo { stamp, .. }
+            | FramePart::Correspondences { stamp, .. }
+            | FramePart::DepthPrior { stamp, .. }
+            | FramePart::Image { stamp, .. }
+            | FramePart::GroundTruthPose { stamp, .. }
+            | FramePart::GroundTruthDepth { stamp, .. } => *stamp,
+        }
+    }
+
+    pub fn kind(&self) -> PartKind {
+        match self {
+            FramePart::CameraInfo { .. } => PartKind::CameraInfo,
+            FramePart::Correspondences { .. } => PartKind::Correspondences,
+            FramePart::DepthPrior { .. } => PartKind::DepthPrior,
+            FramePart::Image { .. } => PartKind::Image,
+            FramePart::GroundTruthPose { .. } => PartKind::GroundTruthPose,
+            FramePart::GroundTruthDepth { .. } => PartKind::GroundTruthDepth,
+        }
+    }
+}
+
+/// A frame that lacks an expected part or had a part that failed to decode.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct IncompleteFrame {
+    pub stamp: Stamp,
+    /// Role names of the expected parts that never arrived (or failed to decode).
+    pub missing: Vec<&'static str>,
+    /// Why parts failed (`"<part>: <reason>"`), duplicates, time-outs.
+    pub errors: Vec<String>,
+    /// True when a required part is missing, so no [`Frame`] was produced.
+    pub dropped: bool,
+}
+
+/// What the assembler hands out for one stamp.
+#[derive(Clone, Debug)]
+pub enum Assembled {
+    /// Every expected part arrived and decoded.
+    Complete(Frame),
+    /// Usable (required parts present) but some expected part is missing or broken.
+    Partial(Frame, IncompleteFrame),
+    /// A required part is missing: no frame.
+    Dropped(IncompleteFrame),
+}
+
+impl Assembled {
+    pub fn stamp(&self) -> Stamp {
+        match self {
+            Assembled::Complete(f) | Assembled::Partial(f, _) => f.stamp,
+            Assembled::Dropped(i) => i.stamp,
+        }
+    }
+
+    /// Splits outcomes into usable frames and reports (a partial frame appears in both).
+    pub fn split(items: impl IntoIterator<Item = Assembled>) -> (Vec<Frame>, Vec<IncompleteFrame>) {
+        let (mut frames, mut reports) = (Vec::new(), Vec::new());
+        for item in items {
+            match item {
+                Assembled::Complete(f) => frames.push(f),
+                Assembled::Partial(f, r) => {
+                    frames.push(f);
+                    reports.push(r);
+                }
+                Assembled::Dropped(r) => reports.push(r),
+            }
+        }
+        (frames, reports)
+    }
+}
+
+#[derive(Default)]
+struct Pending {
+    /// Parts that arrived or failed (bit per [`PartKind`]).
+    resolved: u8,
+    intrinsics: Option<Intrinsics>,
+    correspondences: Option<(String, String, Vec<Correspondence>)>,
+    depth_prior: Option<DepthImage>,
+    image: Option<EncodedImage>,
+    gt_pose: Option<Isometry3<f64>>,
+    gt_depth: Option<DepthImage>,
+    errors: Vec<String>,
+}
+
+/// Joins [`FramePart`]s by `header.stamp` into [`Frame`]s.
+///
+/// A frame is handed out as soon as every *expected* part for its stamp has arrived (or
+/// failed); [`finish`](Self::finish) and [`expire`](Self::expire) hand out the rest with what
+/// is missing. Usable by a bag reader (expected = topics present in the bag) and a live node.
+pub struct FrameAssembler {
+    expected: u8,
+    pending: std::collections::BTreeMap<Stamp, Pending>,
+}
+
+impl FrameAssembler {
+    /// Waits for `expected` parts per stamp; the required parts are always expected.
+    pub fn new(expected: &[PartKind]) -> Self {
+        let expected = expected.iter().chain(PartKind::REQUIRED.iter()).fold(0, |m, k| m | k.bit());
+        Self { expected, pending: Default::default() }
+    }
+
+    /// Number of stamps still waiting for parts.
+    pub fn pending(&self) -> usize {
+        self.pending.len()
+    }
+
+    /// Adds a part; returns the frame when this completes it.
+    pub fn push(&mut self, part: FramePart) -> Option<Assembled> {
+        let stamp = part.stamp();
+        let kind = part.kind();
+        let p = self.pending.entry(stamp).or_default();
+        let already = match part {
+            FramePart::CameraInfo { intrinsics, .. } => p.intrinsics.replace(intrinsics).is_some(),
+            FramePart::Correspondences { camera_frame_id, map_frame_id, correspondences, .. } => {
+                p.correspondences.replace((camera_frame_id, map_frame_id, correspondences)).is_some()
+            }
+            FramePart::DepthPrior { depth, .. } => p.depth_prior.replace(depth).is_some(),
+            FramePart::Image { image, .. } => p.image.replace(image).is_some(),
+            FramePart::GroundTruthPose { pose, .. } => p.gt_pose.replace(pose).is_some(),
+            FramePart::GroundTruthDepth { depth, .. } => p.gt_depth.replace(depth).is_some(),
+        };
+        if already {
+            p.errors.push(format!("{}: duplicate message, kept the last", kind.name()));
+        }
+        p.resolved |= kind.bit();
+        self.complete_if_ready(stamp)
+    }
+
+    /// Records that the part `kind` of the frame at `stamp` could not be decoded.
+    pub fn push_error(&mut self, stamp: Stamp, kind: PartKind, reason: impl std::fmt::Display) -> Option<Assembled> {
+        let p = self.pending.entry(stamp).or_default();
+        p.errors.push(format!("{}: {reason}", kind.name()));
+        p.resolved |= kind.bit();
+        self.complete_if_ready(stamp)
+    }
+
+    /// Hands out every frame whose stamp is older than `now - timeout_ns`, with a time-out
+    /// note for what is missing.
+    pub fn expire(&mut self, now: Stamp, timeout_ns: i64) -> Vec<Assembled> {
+        let cutoff = now.saturating_sub(timeout_ns);
+        let old: Vec<Stamp> = self.pending.range(..cutoff).map(|(s, _)| *s).collect();
+        old.into_iter()
+            .filter_map(|s| {
+                let mut p = self.pending.remove(&s)?;
+                p.errors.push(format!("timed out after {} ms waiting for parts", timeout_ns / 1_000_000));
+                Some(self.assemble(s, p))
+            })
+            .collect()
+    }
+
+    /// Hands out every frame still waiting, sorted by stamp.
+    pub fn finish(&mut self) -> Vec<Assembled> {
+        std::mem::take(&mut self.pending).into_iter().map(|(s, p)| self.assemble(s, p)).collect()
+    }
+
+    fn complete_if_ready(&mut self, stamp: Stamp) -> Option<Assembled> {
+        let ready = self.pending.get(&stamp).is_some_and(|p| p.resolved & self.expected == self.expected);
+        if !ready {
+            return None;
+        }
+        let p = self.pending.remove(&stamp)?;
+        Some(self.assemble(stamp, p))
+    }
+
+    fn assemble(&self, stamp: Stamp, p: Pending) -> Assembled {
+        let present = |k: PartKind| match k {
+            PartKind::CameraInfo => p.intrinsics.is_some(),
+            PartKind::Correspondences => p.correspondences.is_some(),
+            PartKind::DepthPrior => p.depth_prior.is_some(),
+            PartKind::Image => p.image.is_some(),
+            PartKind::GroundTruthPose => p.gt_pose.is_some(),
+            PartKind::GroundTruthDepth => p.gt_depth.is_some(),
+        };
+        let missing: Vec<&'static str> =
+            PartKind::ALL.iter().filter(|k| self.expected & k.bit() != 0 && !present(**k)).map(|k| k.name()).collect();
+        let report = |dropped| IncompleteFrame { stamp, missing: missing.clone(), errors: p.errors.clone(), dropped };
+        let (Some(intrinsics), Some((camera_frame_id, map_frame_id, correspondences))) =
+            (p.intrinsics, p.correspondences.clone())
+        else {
+            return Assembled::Dropped(report(true));
+        };
+        let clean = missing.is_empty() && p.errors.is_empty();
+        let incomplete = (!clean).then(|| report(false));
+        let ground_truth =
+            (p.gt_pose.is_some() || p.gt_depth.is_some()).then_some(GroundTruth { pose: p.gt_pose, depth: p.gt_depth });
+        let frame = Frame {
+            stamp,
+            camera_frame_id,
+            map_frame_id,
+            intrinsics,
+            correspondences,
+            depth_prior: p.depth_prior,
+            image: p.image,
+            ground_truth,
+        };
+        match incomplete {
+            None => Assembled::Complete(frame),
+            Some(r) => Assembled::Partial(frame, r),
+        }
+    }
+}
+
+#[cfg(test)]
+mod assembler_tests {
+    use super::*;
+
+    fn info(stamp: Stamp) -> FramePart {
+        let intrinsics = Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
+        FramePart::CameraInfo { stamp, intrinsics }
+    }
+
+    fn corr(stamp: Stamp) -> FramePart {
+        FramePart::Correspondences {
+            stamp,
+            camera_frame_id: "cam".into(),
+            map_frame_id: "map".into(),
+            correspondences: vec![],
+        }
+    }
+
+    #[test]
+    fn completes_when_expected_parts_arrive_in_any_order() {
+        let mut a = FrameAssembler::new(&[PartKind::DepthPrior]);
+        assert!(a.push(corr(2)).is_none());
+        assert!(a.push(info(1)).is_none());
+        assert!(a.push(info(2)).is_none());
+        let done = a.push(FramePart::DepthPrior { stamp: 2, depth: DepthImage::new(1, 1, vec![1.0]) });
+        match done {
+            Some(Assembled::Complete(f)) => {
+                assert_eq!(f.stamp, 2);
+                assert_eq!(f.camera_frame_id, "cam");
+                assert!(f.depth_prior.is_some());
+            }
+            other => panic!("{other:?}"),
+        }
+        let rest = a.finish();
+        assert_eq!(rest.len(), 1);
+        match &rest[0] {
+            Assembled::Dropped(r) => {
+                assert_eq!(r.stamp, 1);
+                assert_eq!(r.missing, vec!["correspondences", "depth_prior"]);
+                assert!(r.dropped);
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn decode_errors_resolve_the_part_and_are_reported() {
+        let mut a = FrameAssembler::new(&[PartKind::GroundTruthPose]);
+        a.push(info(5));
+        a.push(corr(5));
+        match a.push_error(5, PartKind::GroundTruthPose, "bad quaternion") {
+            Some(Assembled::Partial(f, r)) => {
+                assert_eq!(f.stamp, 5);
+                assert_eq!(r.missing, vec!["ground_truth_pose"]);
+                assert_eq!(r.errors, vec!["ground_truth_pose: bad quaternion".to_string()]);
+                assert!(!r.dropped);
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(a.pending(), 0);
+    }
+
+    #[test]
+    fn expire_hands_out_old_frames_only() {
+        let mut a = FrameAssembler::new(&[PartKind::Image]);
+        a.push(info(100));
+        a.push(corr(100));
+        a.push(info(1_000_000_000));
+        let out = a.expire(1_000_000_000, 500_000_000);
+        assert_eq!(out.len(), 1);
+        let (frames, reports) = Assembled::split(out);
+        assert_eq!(frames.len(), 1);
+        assert_eq!(reports[0].missing, vec!["image"]);
+        assert!(reports[0].errors[0].contains("timed out"));
+        assert_eq!(a.pending(), 1);
+    }
+}

@@ -1,1 +1,381 @@
-//! TODO(#2): reject
+//! Outlier rejection: a [`Rejector`] scores each correspondence of a frame as an inlier and
+//! says which to keep. The training-free [`SpectralRejector`] lives here; the learned network
+//! plugs in behind the same trait.
+
+use nalgebra::{Point2, Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::consistency::{
+    angle_consistency, distance_consistency, estimate_scale_shift, ConsistencyMatrix, ScaleShift, ScaleShiftParams,
+};
+use crate::frame::Frame;
+use crate::geometry::{DepthKind, Intrinsics, PointIndex};
+
+/// The per-frame geometry every rejector works on: the correspondences split into pixels and
+/// map points, each pixel's ray and prior depth, and the image cloud o_i (eq. 2) after the
+/// prior's scale and shift were aligned to the map (when that succeeded).
+#[derive(Clone, Debug, Default)]
+pub struct FrameGeometry {
+    pub intrinsics: Option<Intrinsics>,
+    pub pixels: Vec<Point2<f64>>,
+    pub map_points: Vec<Point3<f64>>,
+    pub matcher_scores: Vec<f32>,
+    /// Each pixel's ray scaled to z = 1.
+    pub rays: Vec<Vector3<f64>>,
+    /// Prior depth per pixel (depth units, inverse depth already inverted); NaN where unknown.
+    pub prior_depth: Vec<f64>,
+    /// Metric depth ≈ scale·prior + shift, when estimated.
+    pub scale_shift: Option<ScaleShift>,
+    /// o_i: pixels back-projected with the aligned prior (prior units if not aligned).
+    pub image_points: Vec<Point3<f64>>,
+}
+
+impl FrameGeometry {
+    /// Builds the geometry of `frame`. Without a depth prior, `prior_depth` is all NaN and the
+    /// image cloud empty; rejectors that need it report that.
+    pub fn build(frame: &Frame, kind: DepthKind, align: Option<&ScaleShiftParams>) -> Self {
+        let k = frame.intrinsics;
+        let pixels: Vec<Point2<f64>> = frame.correspondences.iter().map(|c| c.pixel).collect();
+        let rays = pixels.iter().map(|p| Vector3::new((p.x - k.cx) / k.fx, (p.y - k.cy) / k.fy, 1.0)).collect();
+        let prior_depth = match &frame.depth_prior {
+            Some(prior) => pixels
+                .iter()
+                .map(|p| {
+                    let value = prior.sample(p, k.width, k.height).unwrap_or(f64::NAN);
+                    match kind {
+                        DepthKind::Depth => value,
+                        DepthKind::InverseDepth => 1.0 / value,
+                    }
+                })
+                .collect(),
+            None => vec![f64::NAN; pixels.len()],
+        };
+        let mut geometry = Self {
+            intrinsics: Some(k),
+            map_points: frame.correspondences.iter().map(|c| c.point).collect(),
+            matcher_scores: frame.correspondences.iter().map(|c| c.score).collect(),
+            pixels,
+            rays,
+            prior_depth,
+            scale_shift: None,
+            image_points: Vec::new(),
+        };
+        if frame.depth_prior.is_some() {
+            if let Some(params) = align {
+                geometry.scale_shift = geometry.estimate_scale_shift(params);
+            }
+            geometry.lift();
+        }
+        geometry
+    }
+
+    pub fn len(&self) -> usize {
+        self.pixels.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.pixels.is_empty()
+    }
+
+    pub fn has_prior(&self) -> bool {
+        !self.image_points.is_empty()
+    }
+
+    /// Scale and shift of the prior from the correspondences themselves; local pairs are each
+    /// pixel's nearest neighbours in the image.
+    fn estimate_scale_shift(&self, params: &ScaleShiftParams) -> Option<ScaleShift> {
+        let known: Vec<usize> = (0..self.len()).filter(|&i| self.prior_depth[i].is_finite() && self.prior_depth[i] > 0.0).collect();
+        let rays: Vec<_> = known.iter().map(|&i| self.rays[i]).collect();
+        let depth: Vec<_> = known.iter().map(|&i| self.prior_depth[i]).collect();
+        let map: Vec<_> = known.iter().map(|&i| self.map_points[i]).collect();
+        let flat: Vec<Point3<f32>> = known.iter().map(|&i| Point3::new(self.pixels[i].x as f32, self.pixels[i].y as f32, 0.0)).collect();
+        let index = PointIndex::new(&flat);
+        let mut pairs = Vec::with_capacity(known.len() * params.local_neighbours);
+        for (a, p) in flat.iter().enumerate() {
+            for b in index.nearest(p, params.local_neighbours + 1) {
+                if b != a {
+                    pairs.push((a as u32, b as u32));
+                }
+            }
+        }
+        estimate_scale_shift(&rays, &depth, &map, &pairs, params)
+    }
+
+    /// o_i = (s·d_i + t)·ray_i; unknown prior depths give a NaN point.
+    fn lift(&mut self) {
+        let align = self.scale_shift.unwrap_or(ScaleShift::IDENTITY);
+        self.image_points = self
+            .rays
+            .iter()
+            .zip(&self.prior_depth)
+            .map(|(r, &d)| {
+                let z = align.depth(d);
+                if z.is_finite() && z > 0.0 { Point3::from(r * z) } else { Point3::new(f64::NAN, f64::NAN, f64::NAN) }
+            })
+            .collect();
+    }
+}
+
+/// What a rejector decided for one frame.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Rejection {
+    /// Inlier score in [0, 1] per input correspondence.
+    pub scores: Vec<f32>,
+    /// Indices of the kept correspondences, best first.
+    pub kept: Vec<usize>,
+}
+
+#[derive(Debug, Clone, thiserror::Error, PartialEq)]
+pub enum RejectError {
+    #[error("no depth prior for this frame: the {0} rejector needs one")]
+    MissingDepthPrior(&'static str),
+    #[error("{0}")]
+    Failed(String),
+}
+
+/// Scores correspondences as inliers and selects those to keep.
+pub trait Rejector: Send {
+    fn name(&self) -> &'static str;
+    fn reject(&mut self, geometry: &FrameGeometry) -> Result<Rejection, RejectError>;
+}
+
+/// Which pairwise consistency the spectral rejector uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ConsistencyMetric {
+    /// The paper's angle consistency, eq. (5)–(7).
+    Angle,
+    /// Length consistency on the scale-and-shift-aligned image cloud.
+    #[default]
+    Distance,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SpectralParams {
+    pub metric: ConsistencyMetric,
+    /// σ_d of eq. (7), on the difference of |cos|.
+    pub sigma_d: f64,
+    /// Distance metric tolerance: σ_abs + σ_rel·length (metres).
+    pub sigma_abs: f64,
+    pub sigma_rel: f64,
+    /// Keep this share of the correspondences (best scores first) …
+    pub keep_ratio: f64,
+    /// … but at least this many and at most that many.
+    pub min_keep: usize,
+    pub max_keep: usize,
+    /// Power-iteration steps for the leading eigenvector.
+    pub iterations: usize,
+}
+
+impl Default for SpectralParams {
+    fn default() -> Self {
+        Self {
+            metric: ConsistencyMetric::Distance,
+            sigma_d: 0.2,
+            sigma_abs: 0.05,
+            sigma_rel: 0.1,
+            keep_ratio: 0.25,
+            min_keep: 30,
+            max_keep: 400,
+            iterations: 30,
+        }
+    }
+}
+
+/// Spectral matching (Leordeanu & Hebert 2005) on the consistency matrix Θ: inliers form the
+/// largest mutually consistent cluster, which dominates Θ's leading eigenvector; its entries,
+/// normalised to [0, 1], are the inlier scores.
+#[derive(Default)]
+pub struct SpectralRejector {
+    pub params: SpectralParams,
+    theta: ConsistencyMatrix,
+    image: Vec<Point3<f64>>,
+    map: Vec<Point3<f64>>,
+    index: Vec<usize>,
+    vector: Vec<f32>,
+    next: Vec<f32>,
+}
+
+impl SpectralRejector {
+    pub fn new(params: SpectralParams) -> Self {
+        Self { params, ..Self::default() }
+    }
+
+    /// The consistency matrix of the last frame, over the correspondences with a known prior.
+    pub fn theta(&self) -> &ConsistencyMatrix {
+        &self.theta
+    }
+
+    fn leading_eigenvector(&mut self) {
+        let n = self.theta.n;
+        self.vector.clear();
+        self.vector.resize(n, 1.0 / (n.max(1) as f32).sqrt());
+        self.next.resize(n, 0.0);
+        for _ in 0..self.params.iterations {
+            for i in 0..n {
+                self.next[i] = dot(self.theta.row(i), &self.vector);
+            }
+            let norm = self.next.iter().map(|x| x * x).sum::<f32>().sqrt();
+            if !(norm > 0.0) {
+                break;
+            }
+            let mut change = 0.0f32;
+            for (v, x) in self.vector.iter_mut().zip(&self.next) {
+                let x = x / norm;
+                change += (x - *v).abs();
+                *v = x;
+            }
+            if change < 1e-5 * n as f32 {
+                break;
+            }
+        }
+    }
+}
+
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    // Eight independent accumulators let the compiler vectorise the loop.
+    let mut acc = [0.0f32; 8];
+    let chunks = a.len() / 8;
+    for c in 0..chunks {
+        for k in 0..8 {
+            acc[k] += a[c * 8 + k] * b[c * 8 + k];
+        }
+    }
+    let mut sum: f32 = acc.iter().sum();
+    for k in chunks * 8..a.len() {
+        sum += a[k] * b[k];
+    }
+    sum
+}
+
+impl Rejector for SpectralRejector {
+    fn name(&self) -> &'static str {
+        "consistency"
+    }
+
+    fn reject(&mut self, geometry: &FrameGeometry) -> Result<Rejection, RejectError> {
+        if !geometry.has_prior() {
+            return Err(RejectError::MissingDepthPrior("consistency"));
+        }
+        let n = geometry.len();
+        self.index.clear();
+        self.index.extend((0..n).filter(|&i| geometry.image_points[i].coords.iter().all(|v| v.is_finite())));
+        self.image.clear();
+        self.image.extend(self.index.iter().map(|&i| geometry.image_points[i]));
+        self.map.clear();
+        self.map.extend(self.index.iter().map(|&i| geometry.map_points[i]));
+        match self.params.metric {
+            ConsistencyMetric::Angle => angle_consistency(&self.image, &self.map, None, self.params.sigma_d, &mut self.theta),
+            ConsistencyMetric::Distance => {
+                distance_consistency(&self.image, &self.map, self.params.sigma_abs, self.params.sigma_rel, &mut self.theta)
+            }
+        }
+        self.leading_eigenvector();
+        let max = self.vector.iter().copied().fold(0.0f32, f32::max);
+        let mut scores = vec![0.0f32; n];
+        if max > 0.0 {
+            for (&i, &v) in self.index.iter().zip(&self.vector) {
+                scores[i] = (v / max).clamp(0.0, 1.0);
+            }
+        }
+        Ok(Rejection { kept: top_k(&scores, keep_count(n, &self.params)), scores })
+    }
+}
+
+fn keep_count(n: usize, p: &SpectralParams) -> usize {
+    ((n as f64 * p.keep_ratio).round() as usize).clamp(p.min_keep, p.max_keep.max(p.min_keep)).min(n)
+}
+
+/// Indices of the `k` highest scores, best first (ties by index, so results are deterministic).
+pub fn top_k(scores: &[f32], k: usize) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..scores.len()).collect();
+    order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
+    order.truncate(k);
+    order
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::Correspondence;
+    use crate::geometry::DepthImage;
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+
+    /// A frame of a fronto-parallel-ish scene: inliers consistent with a pose and a prior of
+    /// known scale/shift, outliers with random map points.
+    fn frame(n: usize, inliers: usize) -> (Frame, Vec<bool>) {
+        let k = Intrinsics { fx: 200.0, fy: 200.0, cx: 160.0, cy: 120.0, width: 320, height: 240 };
+        let (w, h) = (160u32, 120u32);
+        // Metric depth: a tilted plane z = 2 + 0.004·u; prior = (z − 0.3)/1.5, at half resolution.
+        let depth_at = |u: f64| 2.0 + 0.004 * u;
+        let data = (0..h).flat_map(|_| (0..w).map(move |x| ((depth_at((x as f64 + 0.5) * 2.0 - 0.5) - 0.3) / 1.5) as f32)).collect();
+        let pose = Isometry3::from_parts(Translation3::new(1.0, 0.5, -0.2), UnitQuaternion::from_euler_angles(0.1, 0.7, -0.3));
+        let mut state = 12345u64;
+        let mut rnd = move || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut truth = Vec::new();
+        let correspondences = (0..n)
+            .map(|i| {
+                let px = Point2::new(10.0 + 300.0 * rnd(), 10.0 + 220.0 * rnd());
+                let p_cam = k.back_project(&px, depth_at(px.x));
+                let inlier = i < inliers;
+                truth.push(inlier);
+                let point = if inlier {
+                    pose.transform_point(&p_cam)
+                } else {
+                    Point3::new(4.0 * rnd() - 2.0, 4.0 * rnd() - 2.0, 3.0 * rnd())
+                };
+                Correspondence { pixel: px, point, score: 0.5 }
+            })
+            .collect();
+        let frame = Frame {
+            stamp: 0,
+            camera_frame_id: "cam".into(),
+            map_frame_id: "map".into(),
+            intrinsics: k,
+            correspondences,
+            depth_prior: Some(DepthImage::new(w, h, data)),
+            image: None,
+            ground_truth: None,
+        };
+        (frame, truth)
+    }
+
+    #[test]
+    fn geometry_aligns_the_prior() {
+        let (f, _) = frame(200, 80);
+        let g = FrameGeometry::build(&f, DepthKind::Depth, Some(&ScaleShiftParams::default()));
+        let ss = g.scale_shift.unwrap();
+        assert!((ss.scale - 1.5).abs() < 0.05 && (ss.shift - 0.3).abs() < 0.1, "{ss:?}");
+    }
+
+    #[test]
+    fn spectral_rejector_keeps_inliers() {
+        for metric in [ConsistencyMetric::Distance, ConsistencyMetric::Angle] {
+            let (f, truth) = frame(300, 90);
+            let g = FrameGeometry::build(&f, DepthKind::Depth, Some(&ScaleShiftParams::default()));
+            let mut r = SpectralRejector::new(SpectralParams { metric, ..SpectralParams::default() });
+            let out = r.reject(&g).unwrap();
+            assert_eq!(out.scores.len(), 300);
+            let top: Vec<_> = out.kept.iter().take(50).collect();
+            let precision = top.iter().filter(|&&&i| truth[i]).count() as f64 / top.len() as f64;
+            assert!(precision > 0.9, "{metric:?}: precision {precision}");
+        }
+    }
+
+    #[test]
+    fn missing_prior_is_an_error_not_a_panic() {
+        let (mut f, _) = frame(50, 20);
+        f.depth_prior = None;
+        let g = FrameGeometry::build(&f, DepthKind::Depth, Some(&ScaleShiftParams::default()));
+        assert_eq!(SpectralRejector::default().reject(&g), Err(RejectError::MissingDepthPrior("consistency")));
+    }
+
+    #[test]
+    fn top_k_orders_by_score() {
+        assert_eq!(top_k(&[0.1, 0.9, 0.5, 0.9], 3), vec![1, 3, 2]);
+    }
+}

@@ -1,0 +1,382 @@
+//! rosbag2 MCAP bags: [`BagReader`] / [`BagWriter`], the [`TopicMap`], and frames from and to
+//! bags ([`read_frames`], [`write_input_bag`]).
+//!
+//! Bags are directories with `metadata.yaml` and `.mcap` files (profile `ros2`, CDR
+//! messages, `ros2msg` schemas), as written by `ros2 bag record -s mcap` and rosbags.
+
+pub mod metadata;
+mod reader;
+mod writer;
+
+pub use reader::{BagChannel, BagMessage, BagReader};
+pub use writer::{BagWriter, ChunkCompression, LIBRARY};
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::frame::Frame;
+use crate::frame::{Assembled, FrameAssembler, FramePart, IncompleteFrame, MapCloud, PartKind, Stamp};
+use crate::msgs::{self, convert, from_cdr, MsgError};
+
+/// Why a bag could not be read or written; every variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum BagError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: not an MCAP file (bad magic bytes at the start)")]
+    NotMcap { path: PathBuf },
+    #[error("{path}: truncated MCAP file (no end magic; was the recording interrupted?)")]
+    Truncated { path: PathBuf },
+    #[error("{path}: corrupt MCAP file: {reason}")]
+    Corrupt { path: PathBuf, reason: String },
+    #[error("{path}: MCAP profile is {profile:?}, not a rosbag2 bag (expected \"ros2\")")]
+    ForeignProfile { path: PathBuf, profile: String },
+    #[error("{path}: topic {topic} has message encoding {encoding:?}, expected \"cdr\"")]
+    MessageEncoding { path: PathBuf, topic: String, encoding: String },
+    #[error("{path}: topic {topic} has schema encoding {encoding:?}, expected \"ros2msg\" or \"ros2idl\"")]
+    SchemaEncoding { path: PathBuf, topic: String, encoding: String },
+    #[error("{path}: bad rosbag2 metadata: {reason}")]
+    Metadata { path: PathBuf, reason: String },
+    #[error("{path}: no .mcap files and no metadata.yaml")]
+    NoStorageFiles { path: PathBuf },
+    #[error("{path}: cannot write bag: {reason}")]
+    Write { path: PathBuf, reason: String },
+    #[error("{path}: {topic}: {source}")]
+    Message { path: PathBuf, topic: String, source: MsgError },
+}
+
+/// Topic names, inputs and outputs; defaults are those of the shared bags.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TopicMap {
+    /// `sensor_msgs/msg/PointCloud2`, once.
+    pub map: String,
+    /// `sensor_msgs/msg/CameraInfo`.
+    pub camera_info: String,
+    /// `sensor_msgs/msg/CompressedImage`.
+    pub image: String,
+    /// `sensor_msgs/msg/Image` (32FC1 or 16UC1).
+    pub depth_prior: String,
+    /// `angle_i2p_msgs/msg/Correspondences`.
+    pub correspondences: String,
+    /// `geometry_msgs/msg/PoseStamped`, camera-to-map.
+    pub ground_truth_pose: String,
+    /// `sensor_msgs/msg/Image`, 16UC1 millimetres.
+    pub ground_truth_depth: String,
+    /// Output `geometry_msgs/msg/PoseStamped`.
+    pub pose: String,
+    /// Output `geometry_msgs/msg/PoseWithCovarianceStamped`.
+    pub pose_with_covariance: String,
+    /// Output `angle_i2p_msgs/msg/Correspondences` (inliers, with inlier scores).
+    pub output_correspondences: String,
+}
+
+impl Default for TopicMap {
+    fn default() -> Self {
+        Self {
+            map: "/map/points".into(),
+            camera_info: "/camera/camera_info".into(),
+            image: "/camera/image_raw/compressed".into(),
+            depth_prior: "/depth_prior/image".into(),
+            correspondences: "/matcher/correspondences".into(),
+            ground_truth_pose: "/ground_truth/pose".into(),
+            ground_truth_depth: "/ground_truth/depth".into(),
+            pose: "/angle_i2p/pose".into(),
+            pose_with_covariance: "/angle_i2p/pose_with_covariance".into(),
+            output_correspondences: "/angle_i2p/correspondences".into(),
+        }
+    }
+}
+
+impl TopicMap {
+    /// The frame part carried by `topic`, if it is a frame input.
+    pub fn part_of(&self, topic: &str) -> Option<PartKind> {
+        PartKind::ALL.into_iter().find(|k| self.topic_of(*k) == topic)
+    }
+
+    /// The input topic of a frame part.
+    pub fn topic_of(&self, kind: PartKind) -> &str {
+        match kind {
+            PartKind::CameraInfo => &self.camera_info,
+            PartKind::Correspondences => &self.correspondences,
+            PartKind::DepthPrior => &self.depth_prior,
+            PartKind::Image => &self.image,
+            PartKind::GroundTruthPose => &self.ground_truth_pose,
+            PartKind::GroundTruthDepth => &self.ground_truth_depth,
+        }
+    }
+}
+
+/// A message that could not be used and belongs to no frame.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct MessageIssue {
+    pub topic: String,
+    pub log_time: u64,
+    pub reason: String,
+}
+
+/// Frames read from a bag.
+#[derive(Clone, Debug, Default)]
+pub struct BagFrames {
+    /// The first map message, if any decoded.
+    pub map: Option<MapCloud>,
+    /// Usable frames (camera info and correspondences present), sorted by stamp.
+    pub frames: Vec<Frame>,
+    /// Frames with a missing or broken part, sorted by stamp; `dropped` ones are not in `frames`.
+    pub incomplete: Vec<IncompleteFrame>,
+    /// Map messages that failed to decode, extra maps.
+    pub issues: Vec<MessageIssue>,
+}
+
+/// Decodes one frame input message into its part.
+pub fn decode_part(kind: PartKind, data: &[u8]) -> Result<FramePart, MsgError> {
+    Ok(match kind {
+        PartKind::CameraInfo => {
+            let m: msgs::CameraInfo = from_cdr(data)?;
+            FramePart::CameraInfo {
+                stamp: convert::stamp(&m.header),
+                intrinsics: convert::intrinsics_from_camera_info(&m)?,
+            }
+        }
+        PartKind::Correspondences => {
+            let m: msgs::Correspondences = from_cdr(data)?;
+            FramePart::Correspondences {
+                stamp: convert::stamp(&m.header),
+                correspondences: convert::correspondences_from_msg(&m)?,
+                camera_frame_id: m.header.frame_id,
+                map_frame_id: m.map_frame_id,
+            }
+        }
+        PartKind::DepthPrior => {
+            let m: msgs::Image = from_cdr(data)?;
+            FramePart::DepthPrior { stamp: convert::stamp(&m.header), depth: convert::depth_from_image(&m)? }
+        }
+        PartKind::Image => {
+            let m: msgs::CompressedImage = from_cdr(data)?;
+            FramePart::Image { stamp: convert::stamp(&m.header), image: convert::encoded_image(&m) }
+        }
+        PartKind::GroundTruthPose => {
+            let m: msgs::PoseStamped = from_cdr(data)?;
+            FramePart::GroundTruthPose { stamp: convert::stamp(&m.header), pose: convert::isometry_from_pose(&m.pose)? }
+        }
+        PartKind::GroundTruthDepth => {
+            let m: msgs::Image = from_cdr(data)?;
+            FramePart::GroundTruthDepth { stamp: convert::stamp(&m.header), depth: convert::depth_from_image(&m)? }
+        }
+    })
+}
+
+/// Reads the map and all frames of a bag, joining topics by `header.stamp`.
+///
+/// A frame waits for every part whose topic exists in the bag; a missing part, or a message
+/// that fails to decode (reported with topic, stamp and reason), never aborts the bag.
+pub fn read_frames(path: impl AsRef<Path>, topics: &TopicMap) -> Result<BagFrames, BagError> {
+    let reader = BagReader::open(path)?;
+    let expected: Vec<PartKind> = PartKind::ALL
+        .into_iter()
+        .filter(|k| reader.channels().iter().any(|c| c.topic == topics.topic_of(*k)))
+        .collect();
+    let mut assembler = FrameAssembler::new(&expected);
+    let mut out = BagFrames::default();
+    let mut assembled = Vec::new();
+    for m in reader.messages() {
+        let topic = m.topic();
+        if topic == topics.map {
+            let issue = |reason: String| MessageIssue { topic: topic.into(), log_time: m.log_time, reason };
+            if out.map.is_some() {
+                out.issues.push(issue("another map message; kept the first".into()));
+                continue;
+            }
+            match from_cdr::<msgs::PointCloud2>(&m.data).and_then(|c| convert::map_cloud_from_point_cloud(&c)) {
+                Ok(map) => out.map = Some(map),
+                Err(e) => out.issues.push(issue(e.to_string())),
+            }
+            continue;
+        }
+        let Some(kind) = topics.part_of(topic) else { continue };
+        let done = match decode_part(kind, &m.data) {
+            Ok(part) => assembler.push(part),
+            Err(e) => {
+                // Attribute the failure to the message's stamp when its header is readable.
+                let stamp: Stamp =
+                    msgs::peek_header(&m.data).map(|h| convert::stamp(&h)).unwrap_or(m.log_time as Stamp);
+                assembler.push_error(stamp, kind, format!("{topic} at stamp {stamp}: {e}"))
+            }
+        };
+        assembled.extend(done);
+    }
+    assembled.extend(assembler.finish());
+    assembled.sort_by_key(Assembled::stamp);
+    let (frames, incomplete) = Assembled::split(assembled);
+    out.frames = frames;
+    out.incomplete = incomplete;
+    Ok(out)
+}
+
+/// Writes an input bag in the layout of the shared bags: the map once first (stamp 100 ms
+/// before the first frame), then per frame camera_info, compressed image (if any), depth
+/// prior (32FC1, if any), correspondences, ground-truth pose (in the map frame) and depth
+/// (16UC1 mm), all with `header.stamp` = frame stamp, log time = stamp, and
+/// `frame_id` = the camera frame.
+pub fn write_input_bag(
+    dir: impl AsRef<Path>,
+    topics: &TopicMap,
+    map: &MapCloud,
+    frames: &[Frame],
+) -> Result<(), BagError> {
+    let mut w = BagWriter::create(dir)?;
+    let first = frames.iter().map(|f| f.stamp).min().unwrap_or(100_000_000);
+    let map_stamp = first.saturating_sub(100_000_000).max(0);
+    w.write(&topics.map, map_stamp, &convert::point_cloud(map_stamp, map))?;
+    let mut order: Vec<&Frame> = frames.iter().collect();
+    order.sort_by_key(|f| f.stamp);
+    for f in order {
+        let (t, cam) = (f.stamp, f.camera_frame_id.as_str());
+        w.write(&topics.camera_info, t, &convert::camera_info(t, cam, &f.intrinsics))?;
+        if let Some(image) = &f.image {
+            w.write(&topics.image, t, &convert::compressed_image(t, cam, image))?;
+        }
+        if let Some(prior) = &f.depth_prior {
+            w.write(&topics.depth_prior, t, &convert::image_32fc1(t, cam, prior))?;
+        }
+        let corr = convert::correspondences_msg(t, cam, &f.map_frame_id, &f.correspondences);
+        w.write(&topics.correspondences, t, &corr)?;
+        if let Some(gt) = &f.ground_truth {
+            if let Some(pose) = &gt.pose {
+                w.write(&topics.ground_truth_pose, t, &convert::pose_stamped(t, &f.map_frame_id, pose))?;
+            }
+            if let Some(depth) = &gt.depth {
+                w.write(&topics.ground_truth_depth, t, &convert::image_16uc1_mm(t, cam, depth))?;
+            }
+        }
+    }
+    w.finish()?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::{Correspondence, EncodedImage, GroundTruth};
+    use crate::geometry::{DepthImage, Intrinsics};
+    use nalgebra::{Isometry3, Point2, Point3, Vector3};
+
+    fn frame(stamp: Stamp, with_prior: bool) -> Frame {
+        Frame {
+            stamp,
+            camera_frame_id: "camera_color_optical_frame".into(),
+            map_frame_id: "map".into(),
+            intrinsics: Intrinsics { fx: 525.0, fy: 525.0, cx: 320.0, cy: 240.0, width: 4, height: 2 },
+            correspondences: vec![Correspondence {
+                pixel: Point2::new(1.5, 0.5),
+                point: Point3::new(0.25, -1.0, 2.0),
+                score: 0.75,
+            }],
+            depth_prior: with_prior.then(|| DepthImage::new(2, 1, vec![1.5, 2.5])),
+            image: Some(EncodedImage { format: "jpeg".into(), data: vec![0xff, 0xd8, 0xff, 0xd9] }),
+            ground_truth: Some(GroundTruth {
+                pose: Some(Isometry3::new(Vector3::new(1.0, 2.0, 3.0), Vector3::new(0.0, 0.5, 0.0))),
+                depth: Some(DepthImage::new(4, 2, vec![1.0, 0.0, 2.5, 0.5, 0.0, 0.0, 0.0, 1.234])),
+            }),
+        }
+    }
+
+    #[test]
+    fn input_bag_round_trips_through_read_frames() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("bag");
+        let map =
+            MapCloud { frame_id: "map".into(), points: vec![Point3::new(1.0, 2.0, 3.0), Point3::new(-1.0, 0.5, 9.0)] };
+        let frames = vec![frame(1_700_000_000_200_000_000, true), frame(1_700_000_000_100_000_000, true)];
+        write_input_bag(&dir, &TopicMap::default(), &map, &frames).unwrap();
+        assert!(dir.join("metadata.yaml").exists());
+        let read = read_frames(&dir, &TopicMap::default()).unwrap();
+        assert_eq!(read.map.unwrap().points, map.points);
+        assert!(read.incomplete.is_empty(), "{:?}", read.incomplete);
+        assert_eq!(read.frames.len(), 2);
+        assert!(read.frames[0].stamp < read.frames[1].stamp);
+        let (a, b) = (&read.frames[0], &frames[1]);
+        assert_eq!(a.camera_frame_id, b.camera_frame_id);
+        assert_eq!(a.intrinsics, b.intrinsics);
+        assert_eq!(a.correspondences, b.correspondences);
+        assert_eq!(a.depth_prior, b.depth_prior);
+        assert_eq!(a.image.as_ref().unwrap().data, b.image.as_ref().unwrap().data);
+        let (ga, gb) = (a.ground_truth.as_ref().unwrap(), b.ground_truth.as_ref().unwrap());
+        assert!((ga.pose.unwrap().to_homogeneous() - gb.pose.unwrap().to_homogeneous()).norm() < 1e-12);
+        assert_eq!(ga.depth, gb.depth);
+    }
+
+    #[test]
+    fn missing_parts_and_bad_messages_are_reported() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("bag");
+        let topics = TopicMap::default();
+        let mut w = BagWriter::create(&dir).unwrap();
+        // Frame 10: complete but no depth prior while another frame has one.
+        let f = frame(10, false);
+        w.write(&topics.camera_info, 10, &convert::camera_info(10, "cam", &f.intrinsics)).unwrap();
+        w.write(&topics.correspondences, 10, &convert::correspondences_msg(10, "cam", "map", &f.correspondences))
+            .unwrap();
+        // Frame 20: a NaN correspondence and a depth prior with a bad encoding.
+        let mut bad = convert::correspondences_msg(20, "cam", "map", &f.correspondences);
+        bad.correspondences[0].x = f32::NAN;
+        w.write(&topics.camera_info, 20, &convert::camera_info(20, "cam", &f.intrinsics)).unwrap();
+        w.write(&topics.correspondences, 20, &bad).unwrap();
+        let mut prior = convert::image_32fc1(20, "cam", &DepthImage::new(1, 1, vec![1.0]));
+        prior.encoding = "rgb8".into();
+        w.write(&topics.depth_prior, 20, &prior).unwrap();
+        // Frame 30: only correspondences; plus garbage on the map topic.
+        w.write(&topics.correspondences, 30, &convert::correspondences_msg(30, "cam", "map", &f.correspondences))
+            .unwrap();
+        w.write_raw(
+            &topics.map,
+            "sensor_msgs/msg/PointCloud2",
+            <msgs::PointCloud2 as msgs::RosMessage>::SCHEMA,
+            1,
+            &[0, 1, 0, 0, 9],
+        )
+        .unwrap();
+        w.finish().unwrap();
+
+        let read = read_frames(&dir, &topics).unwrap();
+        assert!(read.map.is_none());
+        assert_eq!(read.issues.len(), 1);
+        assert_eq!(read.frames.iter().map(|f| f.stamp).collect::<Vec<_>>(), vec![10]);
+        let stamps: Vec<_> = read.incomplete.iter().map(|i| (i.stamp, i.dropped)).collect();
+        assert_eq!(stamps, vec![(10, false), (20, true), (30, true)]);
+        assert_eq!(read.incomplete[0].missing, vec!["depth_prior"]);
+        let r20 = &read.incomplete[1];
+        assert_eq!(r20.missing, vec!["correspondences", "depth_prior"]);
+        assert!(
+            r20.errors.iter().any(|e| e.contains("/matcher/correspondences") && e.contains("#0")),
+            "{:?}",
+            r20.errors
+        );
+        assert!(r20.errors.iter().any(|e| e.contains("rgb8")), "{:?}", r20.errors);
+        assert_eq!(read.incomplete[2].missing, vec!["camera_info", "depth_prior"]);
+    }
+
+    #[test]
+    fn writer_refuses_existing_bag_and_type_conflicts() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("b");
+        let mut w = BagWriter::create(&dir).unwrap();
+        w.write("/x", 5, &msgs::Header::new(5, "f")).unwrap();
+        let err = w.write("/x", 6, &msgs::Time::from_nanos(6)).unwrap_err();
+        assert!(err.to_string().contains("/x"), "{err}");
+        assert!(w.write("/y", -1, &msgs::Time::default()).is_err());
+        w.finish().unwrap();
+        let err = BagWriter::create(&dir).err().unwrap();
+        assert!(err.to_string().contains("already exists"), "{err}");
+    }
+
+    #[test]
+    fn topic_map_defaults_and_partial_yaml() {
+        let t: TopicMap = serde_yaml::from_str("image: /cam/jpeg\n").unwrap();
+        assert_eq!(t.image, "/cam/jpeg");
+        assert_eq!(t.correspondences, "/matcher/correspondences");
+        assert_eq!(t.part_of("/depth_prior/image"), Some(PartKind::DepthPrior));
+        assert!(serde_yaml::from_str::<TopicMap>("imag: /x\n").is_err());
+    }
+}

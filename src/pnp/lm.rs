@@ -1,0 +1,333 @@
+//! Levenberg–Marquardt refinement of the pixel reprojection error over SE(3), with IRLS robust
+//! weights, and the Gauss–Newton pose covariance.
+//!
+//! The update is a left perturbation of the map-to-camera transform:
+//! `x_cam' = exp([ω]×)·x_cam + δt`, so `∂x_cam/∂ω = −[x_cam]×`, `∂x_cam/∂δt = I`.
+
+use super::{MapToCamera, PnpError, RobustLoss};
+use crate::geometry::Intrinsics;
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, SymmetricEigen, Vector2, Vector3, Vector6};
+
+/// Pinhole parameters in the form the inner loops use.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Cam {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
+impl Cam {
+    pub(crate) fn new(k: &Intrinsics) -> Self {
+        Self { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy }
+    }
+}
+
+/// Smallest camera depth that counts as "in front".
+pub(crate) const MIN_DEPTH: f64 = 1e-9;
+
+/// Squared pixel reprojection error, `+∞` behind the camera.
+#[inline(always)]
+pub(crate) fn reproj_err2(cam: &Cam, pose: &MapToCamera, pw: &Vector3<f64>, px: &Vector2<f64>) -> f64 {
+    let x = pose.rotation * pw + pose.translation;
+    if !(x.z > MIN_DEPTH) {
+        return f64::INFINITY;
+    }
+    let iz = 1.0 / x.z;
+    let du = cam.fx * x.x * iz + cam.cx - px.x;
+    let dv = cam.fy * x.y * iz + cam.cy - px.y;
+    du * du + dv * dv
+}
+
+/// Robust loss `ρ(s)` of a squared residual `s` and its derivative `ρ'(s)` (the IRLS weight).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Loss {
+    kind: RobustLoss,
+    c2: f64,
+    c: f64,
+}
+
+impl Loss {
+    pub(crate) fn new(kind: RobustLoss, scale: f64) -> Self {
+        let c = if scale.is_finite() && scale > 0.0 { scale } else { 1.0 };
+        Self { kind, c, c2: c * c }
+    }
+
+    #[inline(always)]
+    fn eval(&self, s: f64) -> (f64, f64) {
+        match self.kind {
+            RobustLoss::Trivial => (s, 1.0),
+            RobustLoss::Huber => {
+                if s <= self.c2 {
+                    (s, 1.0)
+                } else {
+                    let r = s.sqrt();
+                    (2.0 * self.c * r - self.c2, self.c / r)
+                }
+            }
+            RobustLoss::Cauchy => {
+                let q = 1.0 + s / self.c2;
+                (self.c2 * q.ln(), 1.0 / q)
+            }
+        }
+    }
+}
+
+/// `exp([ω]×)` by Rodrigues, Taylor near zero.
+#[inline(always)]
+pub(crate) fn so3_exp(w: &Vector3<f64>) -> Matrix3<f64> {
+    let th2 = w.norm_squared();
+    let (a, b) = if th2 < 1e-8 {
+        (1.0 - th2 / 6.0, 0.5 - th2 / 24.0)
+    } else {
+        let th = th2.sqrt();
+        (th.sin() / th, (1.0 - th.cos()) / th2)
+    };
+    let k = w.cross_matrix();
+    Matrix3::identity() + k * a + k * k * b
+}
+
+#[inline(always)]
+fn apply(pose: &MapToCamera, d: &Vector6<f64>) -> MapToCamera {
+    let r = so3_exp(&Vector3::new(d[0], d[1], d[2]));
+    MapToCamera { rotation: r * pose.rotation, translation: r * pose.translation + Vector3::new(d[3], d[4], d[5]) }
+}
+
+/// Cost, normal matrix and gradient at `pose` over `idx`, in one pass.
+struct Linearization {
+    cost: f64,
+    h: Matrix6<f64>,
+    g: Vector6<f64>,
+}
+
+/// Penalty of a point that moved behind the camera (in the loss's units).
+fn behind_penalty(loss: &Loss) -> f64 {
+    loss.eval(1e8).0
+}
+
+fn linearize(cam: &Cam, px: &[Vector2<f64>], pw: &[Vector3<f64>], idx: &[usize], pose: &MapToCamera, loss: &Loss) -> Linearization {
+    let mut cost = 0.0;
+    let mut h = Matrix6::zeros();
+    let mut g = Vector6::zeros();
+    let penalty = behind_penalty(loss);
+    for &i in idx {
+        let x = pose.rotation * pw[i] + pose.translation;
+        if !(x.z > MIN_DEPTH) {
+            cost += penalty;
+            continue;
+        }
+        let iz = 1.0 / x.z;
+        let ru = cam.fx * x.x * iz + cam.cx - px[i].x;
+        let rv = cam.fy * x.y * iz + cam.cy - px[i].y;
+        let (rho, w) = loss.eval(ru * ru + rv * rv);
+        cost += rho;
+        let (a, c) = (cam.fx * iz, -cam.fx * x.x * iz * iz);
+        let (e, f) = (cam.fy * iz, -cam.fy * x.y * iz * iz);
+        let ju = Vector6::new(c * x.y, a * x.z - c * x.x, -a * x.y, a, 0.0, c);
+        let jv = Vector6::new(-e * x.z + f * x.y, -f * x.x, e * x.x, 0.0, e, f);
+        h += (ju * ju.transpose() + jv * jv.transpose()) * w;
+        g += (ju * ru + jv * rv) * w;
+    }
+    Linearization { cost, h, g }
+}
+
+/// LM on the points `idx`; returns the refined pose, its robust cost and the iterations run.
+/// Never worse than `pose` in cost.
+pub(crate) fn lm_refine(
+    cam: &Cam,
+    px: &[Vector2<f64>],
+    pw: &[Vector3<f64>],
+    idx: &[usize],
+    mut pose: MapToCamera,
+    loss: &Loss,
+    max_iterations: usize,
+) -> (MapToCamera, f64, usize) {
+    let mut lin = linearize(cam, px, pw, idx, &pose, loss);
+    let mut mu = 1e-4;
+    let mut it = 0;
+    while it < max_iterations {
+        it += 1;
+        if !(lin.cost > 0.0) || !lin.g.iter().all(|v| v.is_finite()) {
+            break;
+        }
+        let mut accepted = false;
+        let mut converged = false;
+        while mu < 1e10 {
+            let mut a = lin.h;
+            for k in 0..6 {
+                a[(k, k)] += mu * lin.h[(k, k)].max(1e-9);
+            }
+            let Some(chol) = a.cholesky() else {
+                mu *= 10.0;
+                continue;
+            };
+            let delta = -chol.solve(&lin.g);
+            if !delta.iter().all(|v| v.is_finite()) {
+                mu *= 10.0;
+                continue;
+            }
+            let cand = apply(&pose, &delta);
+            let lc = linearize(cam, px, pw, idx, &cand, loss);
+            if lc.cost < lin.cost {
+                converged = lin.cost - lc.cost < 1e-12 * lin.cost || delta.norm_squared() < 1e-24;
+                pose = cand;
+                lin = lc;
+                mu = (mu * 0.1).max(1e-12);
+                accepted = true;
+                break;
+            }
+            mu *= 10.0;
+        }
+        if !accepted || converged {
+            break;
+        }
+    }
+    (pose, lin.cost, it)
+}
+
+/// Gauss–Newton covariance of the camera-to-map pose over the points `idx`, order
+/// `(x, y, z, rot x, rot y, rot z)`: `σ²·(JᵀJ)⁻¹` with `σ² = Σ|r|² / (2n − 6)`.
+/// `None` with fewer than 4 points in front of the camera.
+pub(crate) fn covariance(cam: &Cam, px: &[Vector2<f64>], pw: &[Vector3<f64>], idx: &[usize], pose: &MapToCamera) -> Option<Matrix6<f64>> {
+    let r = pose.rotation;
+    let mut h = Matrix6::zeros();
+    let mut sq = 0.0;
+    let mut n = 0usize;
+    for &i in idx {
+        let x = r * pw[i] + pose.translation;
+        if !(x.z > MIN_DEPTH) {
+            continue;
+        }
+        let iz = 1.0 / x.z;
+        let ru = cam.fx * x.x * iz + cam.cx - px[i].x;
+        let rv = cam.fy * x.y * iz + cam.cy - px[i].y;
+        sq += ru * ru + rv * rv;
+        n += 1;
+        // ∂x_cam/∂(δp, δθ) = [−R | [x_cam]× R] for p' = p + δp, R_map_cam' = exp([δθ]×) R_map_cam.
+        let xr = x.cross_matrix() * r;
+        let du = Vector3::new(cam.fx * iz, 0.0, -cam.fx * x.x * iz * iz);
+        let dv = Vector3::new(0.0, cam.fy * iz, -cam.fy * x.y * iz * iz);
+        let (up, ut) = (-(r.transpose() * du), xr.transpose() * du);
+        let (vp, vt) = (-(r.transpose() * dv), xr.transpose() * dv);
+        let ju = Vector6::new(up.x, up.y, up.z, ut.x, ut.y, ut.z);
+        let jv = Vector6::new(vp.x, vp.y, vp.z, vt.x, vt.y, vt.z);
+        h += ju * ju.transpose() + jv * jv.transpose();
+    }
+    if n < 4 {
+        return None;
+    }
+    let sigma2 = sq / (2 * n - 6) as f64;
+    let eig = SymmetricEigen::new(h);
+    let lmax = eig.eigenvalues.amax();
+    if !(lmax.is_finite() && lmax > 0.0) {
+        return None;
+    }
+    // Unobservable directions get a huge (but finite) variance instead of a panic or NaN.
+    let floor = lmax * 1e-14;
+    let inv = Vector6::from_iterator(eig.eigenvalues.iter().map(|&l| 1.0 / l.max(floor)));
+    let cov = eig.eigenvectors * Matrix6::from_diagonal(&inv) * eig.eigenvectors.transpose() * sigma2;
+    let cov = (cov + cov.transpose()) * 0.5;
+    cov.iter().all(|v| v.is_finite()).then_some(cov)
+}
+
+/// Options of [`refine_pose`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RefineOptions {
+    pub max_iterations: usize,
+    pub loss: RobustLoss,
+    /// Scale of the robust loss, pixels.
+    pub loss_scale_px: f64,
+}
+
+impl Default for RefineOptions {
+    fn default() -> Self {
+        Self { max_iterations: 50, loss: RobustLoss::Trivial, loss_scale_px: 2.0 }
+    }
+}
+
+/// Result of [`refine_pose`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct RefineResult {
+    /// Camera-to-map pose.
+    pub pose: Isometry3<f64>,
+    /// Final robust cost (sum of `ρ(|r|²)`, pixels²).
+    pub cost: f64,
+    /// Plain RMS reprojection error over the points in front of the camera, pixels.
+    pub rmse_px: f64,
+    pub iterations: usize,
+}
+
+/// Validated compact copies of the finite correspondences.
+pub(crate) fn finite_pairs(pixels: &[Point2<f64>], points: &[Point3<f64>]) -> (Vec<Vector2<f64>>, Vec<Vector3<f64>>, Vec<usize>) {
+    let mut px = Vec::with_capacity(pixels.len());
+    let mut pw = Vec::with_capacity(pixels.len());
+    let mut orig = Vec::with_capacity(pixels.len());
+    for (i, (p, x)) in pixels.iter().zip(points).enumerate() {
+        if p.coords.iter().chain(x.coords.iter()).all(|v| v.is_finite()) {
+            px.push(p.coords);
+            pw.push(x.coords);
+            orig.push(i);
+        }
+    }
+    (px, pw, orig)
+}
+
+pub(crate) fn check_basic(intrinsics: &Intrinsics, pixels: usize, points: usize) -> Result<(), PnpError> {
+    if !intrinsics.is_valid() {
+        return Err(PnpError::InvalidIntrinsics);
+    }
+    if pixels != points {
+        return Err(PnpError::LengthMismatch { pixels, points, scores: None });
+    }
+    Ok(())
+}
+
+/// Levenberg–Marquardt refinement of a camera-to-map pose on all (finite) correspondences,
+/// minimising the robust reprojection error in pixels. Needs ≥ 4 finite correspondences and a
+/// finite initial pose.
+pub fn refine_pose(
+    intrinsics: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+    initial: &Isometry3<f64>,
+    options: &RefineOptions,
+) -> Result<RefineResult, PnpError> {
+    check_basic(intrinsics, pixels.len(), points.len())?;
+    let (px, pw, _) = finite_pairs(pixels, points);
+    if px.len() < 4 {
+        return Err(PnpError::TooFewPoints { usable: px.len(), required: 4 });
+    }
+    let start = MapToCamera::from_camera_to_map(initial);
+    if !start.is_finite() {
+        return Err(PnpError::InvalidParams("non-finite initial pose"));
+    }
+    let cam = Cam::new(intrinsics);
+    let idx: Vec<usize> = (0..px.len()).collect();
+    let loss = Loss::new(options.loss, options.loss_scale_px);
+    let (pose, cost, iterations) = lm_refine(&cam, &px, &pw, &idx, start, &loss, options.max_iterations);
+    let (mut sq, mut n) = (0.0, 0usize);
+    for i in 0..px.len() {
+        let e = reproj_err2(&cam, &pose, &pw[i], &px[i]);
+        if e.is_finite() {
+            sq += e;
+            n += 1;
+        }
+    }
+    let rmse_px = if n > 0 { (sq / n as f64).sqrt() } else { f64::INFINITY };
+    Ok(RefineResult { pose: pose.to_camera_to_map(), cost, rmse_px, iterations })
+}
+
+/// Covariance of a camera-to-map pose given its (inlier) correspondences; see the module doc for
+/// the parameterisation. Needs ≥ 4 finite correspondences in front of the camera.
+pub fn pose_covariance(
+    intrinsics: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+    pose: &Isometry3<f64>,
+) -> Result<Matrix6<f64>, PnpError> {
+    check_basic(intrinsics, pixels.len(), points.len())?;
+    let (px, pw, _) = finite_pairs(pixels, points);
+    let idx: Vec<usize> = (0..px.len()).collect();
+    let m2c = MapToCamera::from_camera_to_map(pose);
+    covariance(&Cam::new(intrinsics), &px, &pw, &idx, &m2c).ok_or(PnpError::TooFewPoints { usable: px.len(), required: 4 })
+}

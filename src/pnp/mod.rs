@@ -1,0 +1,166 @@
+//! Robust perspective-n-point: camera pose from putative 2D–3D correspondences, most of them
+//! wrong. Built like PoseLib: minimal solver ([`p3p`], Lambda Twist), non-minimal solver
+//! ([`epnp`] + [`refine_pose`], Levenberg–Marquardt on pixel reprojection error over SE(3)) and a
+//! robust estimator ([`solve_pnp_ransac`]: PROSAC/uniform sampling, SPRT + MSAC scoring,
+//! LO-RANSAC, adaptive termination, final refinement and covariance), each usable on its own.
+//!
+//! Crate decision: written here. `kornia-pnp` is f32/glam, pulls nalgebra 0.32 and
+//! kornia-imgproc, and only has EPnP inside uniform RANSAC (no P3P, PROSAC or LO); `sqpnp` is
+//! good but pins nalgebra 0.34 + glam; `lambda-twist`/`arrsac` (rust-cv) sit on cv-core with an
+//! old nalgebra and rand_core 0.9, are unmaintained since ~2021 and have no score-ordered sampling.
+//!
+//! # Conventions
+//! * Pixels are in the image of [`Intrinsics`] (pinhole, no distortion): `u = fx·x/z + cx`.
+//! * [`PnpSolution::pose`] and every `Isometry3` in this module's public API is the
+//!   **camera-to-map** pose `T_map_cam`: `x_map = pose * x_cam`. The camera frame is the optical
+//!   frame (x right, y down, z forward). [`MapToCamera`] is its inverse (`x_cam = R·x_map + t`),
+//!   the form the solvers work in.
+//! * A point is visible only with `z_cam > 0`; points behind the camera are never inliers.
+//! * Covariances are 6×6 over `(x, y, z, rot x, rot y, rot z)` (ROS `PoseWithCovariance`
+//!   order) of the camera-to-map pose, with the perturbation applied in the map frame:
+//!   `p' = p + δp`, `R' = exp([δθ]×)·R`, in metres² and radians².
+//! * Non-finite correspondences are ignored (never inliers); a non-finite score ranks last.
+
+mod epnp;
+mod lm;
+mod p3p;
+mod ransac;
+mod rng;
+
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+pub use epnp::epnp;
+pub use lm::{pose_covariance, refine_pose, RefineOptions, RefineResult};
+pub use p3p::{p3p, P3pSolutions};
+pub use ransac::{solve_pnp_nonminimal, solve_pnp_ransac};
+
+/// Why a PnP solve produced no pose.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum PnpError {
+    #[error("invalid camera intrinsics")]
+    InvalidIntrinsics,
+    #[error("length mismatch: {pixels} pixels, {points} points, {scores:?} scores")]
+    LengthMismatch { pixels: usize, points: usize, scores: Option<usize> },
+    #[error("invalid parameter: {0}")]
+    InvalidParams(&'static str),
+    #[error("too few usable correspondences: {usable} < {required}")]
+    TooFewPoints { usable: usize, required: usize },
+    #[error("degenerate configuration: {0}")]
+    Degenerate(&'static str),
+    #[error("no consensus: best pose has {inliers} inliers, {required} required")]
+    NoConsensus { inliers: usize, required: usize },
+}
+
+/// Robust loss on the pixel reprojection error used by the refinements.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RobustLoss {
+    /// Plain least squares.
+    Trivial,
+    /// Quadratic up to the scale, linear beyond.
+    #[default]
+    Huber,
+    /// `s²·ln(1 + r²/s²)`.
+    Cauchy,
+}
+
+/// Parameters of [`solve_pnp_ransac`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct PnpParams {
+    /// Inlier threshold on the reprojection error, pixels.
+    pub threshold_px: f64,
+    /// Probability of having drawn at least one all-inlier sample when stopping.
+    pub confidence: f64,
+    pub min_iterations: usize,
+    pub max_iterations: usize,
+    /// Local optimisation (LO-RANSAC) whenever a new best pose is found.
+    pub local_optimization: bool,
+    /// Fewer inliers than this is a failure.
+    pub min_inliers: usize,
+    /// Final LM refinement on all inliers.
+    pub refine: bool,
+    /// Robust loss of the final refinement.
+    pub loss: RobustLoss,
+    /// Scale of the robust loss, pixels.
+    pub loss_scale_px: f64,
+}
+
+impl Default for PnpParams {
+    fn default() -> Self {
+        Self {
+            threshold_px: 8.0,
+            confidence: 0.9999,
+            min_iterations: 100,
+            max_iterations: 10_000,
+            local_optimization: true,
+            min_inliers: 6,
+            refine: true,
+            loss: RobustLoss::Huber,
+            loss_scale_px: 2.0,
+        }
+    }
+}
+
+/// Result of [`solve_pnp_ransac`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct PnpSolution {
+    /// Camera-to-map pose: `x_map = pose * x_cam`.
+    pub pose: Isometry3<f64>,
+    /// One flag per input correspondence.
+    pub inliers: Vec<bool>,
+    pub num_inliers: usize,
+    /// Hypothesis samples drawn.
+    pub iterations: usize,
+    /// Root-mean-square of the 2D reprojection error norm over the inliers, pixels
+    /// (`√(Σ|r|²/n)`; ≈ √2·σ for σ px of noise per axis).
+    pub rmse_px: f64,
+    /// 6×6 covariance of `pose`, order `(x, y, z, rot x, rot y, rot z)`, see the module doc.
+    pub covariance: nalgebra::Matrix6<f64>,
+}
+
+/// Map-to-camera rigid transform `x_cam = rotation · x_map + translation`, the inverse of the
+/// camera-to-map pose. `rotation` is orthonormal.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MapToCamera {
+    pub rotation: Matrix3<f64>,
+    pub translation: Vector3<f64>,
+}
+
+impl MapToCamera {
+    pub fn identity() -> Self {
+        Self { rotation: Matrix3::identity(), translation: Vector3::zeros() }
+    }
+
+    /// From a camera-to-map pose.
+    pub fn from_camera_to_map(pose: &Isometry3<f64>) -> Self {
+        let inv = pose.inverse();
+        Self { rotation: inv.rotation.to_rotation_matrix().into_inner(), translation: inv.translation.vector }
+    }
+
+    /// The camera-to-map pose `x_map = pose * x_cam`.
+    pub fn to_camera_to_map(&self) -> Isometry3<f64> {
+        // Shepperd's method then normalisation absorbs the rounding LM updates accumulate.
+        let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(self.rotation));
+        let map_to_cam = Isometry3::from_parts(Translation3::from(self.translation), q);
+        map_to_cam.inverse()
+    }
+
+    #[inline(always)]
+    pub fn transform(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.rotation * p + self.translation
+    }
+
+    pub fn transform_point(&self, p: &Point3<f64>) -> Point3<f64> {
+        Point3::from(self.transform(&p.coords))
+    }
+
+    pub(crate) fn is_finite(&self) -> bool {
+        self.rotation.iter().chain(self.translation.iter()).all(|v| v.is_finite())
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,457 @@
+//! Robust estimation: PROSAC (score-ordered) or uniform sampling of P3P samples, SPRT + MSAC
+//! scoring with early exit, LO-RANSAC, adaptive termination, final refinement, covariance.
+//!
+//! The correspondences are stored once in a random order ("positions") so that scoring streams
+//! through memory and the SPRT sees an unbiased sequence; PROSAC works on score ranks mapped to
+//! positions. Nothing is allocated inside the sampling loop.
+
+use super::epnp::epnp_normalized;
+use super::lm::{check_basic, covariance, finite_pairs, lm_refine, reproj_err2, Cam, Loss, RefineOptions, RefineResult, MIN_DEPTH};
+use super::p3p::p3p_unit;
+use super::rng::WyRand;
+use super::{MapToCamera, PnpError, PnpParams, PnpSolution, RobustLoss};
+use crate::geometry::Intrinsics;
+use nalgebra::{Matrix3, Point2, Point3, SymmetricEigen, Vector2, Vector3};
+
+/// Sample size of the minimal solver.
+const M: usize = 3;
+/// Assumed probability that a correspondence agrees with a wrong model (SPRT δ).
+const SPRT_DELTA: f64 = 0.02;
+/// SPRT decision threshold A: a good model is wrongly rejected with probability ≲ 1/A.
+const SPRT_A: f64 = 300.0;
+/// Rounds of local optimisation per new best model, and LM iterations per round.
+const LO_ROUNDS: usize = 4;
+const LO_LM_ITERATIONS: usize = 6;
+/// Rounds of the final refinement and their LM iterations.
+const FINAL_ROUNDS: usize = 3;
+const FINAL_LM_ITERATIONS: usize = 30;
+/// Non-randomness test of PROSAC's stopping length: tail at `z` σ of a binomial with this rate.
+const NONRANDOM_BETA: f64 = 0.05;
+const NONRANDOM_Z: f64 = 3.0;
+
+/// PROSAC sampler (Chum & Matas 2005) over ranks `0..n`, best score first; it draws from a
+/// growing prefix and reaches uniform sampling over all ranks after about `t_max` samples.
+struct Prosac {
+    n: usize,
+    big_n: usize,
+    t: usize,
+    tn: f64,
+    tn_prime: f64,
+}
+
+impl Prosac {
+    fn new(big_n: usize, t_max: usize) -> Self {
+        let mut tn = t_max.max(1) as f64;
+        for i in 0..M {
+            tn *= (M - i) as f64 / (big_n - i) as f64;
+        }
+        Self { n: M, big_n, t: 0, tn, tn_prime: 1.0 }
+    }
+
+    #[inline]
+    fn sample(&mut self, rng: &mut WyRand) -> [usize; 3] {
+        self.t += 1;
+        while self.t as f64 > self.tn_prime && self.n < self.big_n {
+            let next = self.tn * (self.n + 1) as f64 / (self.n + 1 - M) as f64;
+            self.tn_prime += (next - self.tn).ceil();
+            self.tn = next;
+            self.n += 1;
+        }
+        if self.tn_prime < self.t as f64 {
+            distinct3(rng, self.n)
+        } else {
+            // The newest rank plus two from the ranks before it.
+            let (a, b) = distinct2(rng, self.n - 1);
+            [self.n - 1, a, b]
+        }
+    }
+}
+
+#[inline(always)]
+fn distinct2(rng: &mut WyRand, n: usize) -> (usize, usize) {
+    let a = rng.below(n);
+    let mut b = rng.below(n - 1);
+    if b >= a {
+        b += 1;
+    }
+    (a, b)
+}
+
+#[inline(always)]
+fn distinct3(rng: &mut WyRand, n: usize) -> [usize; 3] {
+    let (a, b) = distinct2(rng, n);
+    let (lo, hi) = if a < b { (a, b) } else { (b, a) };
+    let mut c = rng.below(n - 2);
+    if c >= lo {
+        c += 1;
+    }
+    if c >= hi {
+        c += 1;
+    }
+    [a, b, c]
+}
+
+/// Samples needed to draw an all-inlier minimal sample with probability `confidence` when a
+/// fraction `eps` are inliers; `sprt_keep` is the probability that SPRT keeps a good model.
+fn samples_needed(eps: f64, confidence: f64, sprt_keep: f64) -> f64 {
+    let p = eps.powi(M as i32) * sprt_keep;
+    if p >= 1.0 {
+        return 0.0;
+    }
+    if !(p > 0.0) {
+        return f64::INFINITY;
+    }
+    ((1.0 - confidence).ln() / (-p).ln_1p()).max(0.0)
+}
+
+/// Outcome of scoring one hypothesis.
+enum Score {
+    /// Stopped early: it cannot beat the best, or SPRT rejected it.
+    Rejected,
+    /// Fully evaluated and better than the best: MSAC score and inlier count.
+    Better(f64, usize),
+}
+
+/// SPRT log-likelihood increments, active once the best model's inlier ratio clearly exceeds δ.
+#[derive(Clone, Copy)]
+struct Sprt {
+    log_in: f64,
+    log_out: f64,
+    log_a: f64,
+}
+
+impl Sprt {
+    fn new(eps: f64) -> Option<Self> {
+        (eps > 1.5 * SPRT_DELTA && eps < 1.0).then(|| Self {
+            log_in: (SPRT_DELTA / eps).ln(),
+            log_out: ((1.0 - SPRT_DELTA) / (1.0 - eps)).ln(),
+            log_a: SPRT_A.ln(),
+        })
+    }
+}
+
+struct Data {
+    cam: Cam,
+    px: Vec<Vector2<f64>>,
+    pw: Vec<Vector3<f64>>,
+    th2: f64,
+}
+
+impl Data {
+    /// MSAC score with early exit once it reaches `best` or SPRT rejects.
+    #[inline(always)]
+    fn score_bounded(&self, pose: &MapToCamera, best: f64, sprt: Option<Sprt>) -> Score {
+        let (cam, th2) = (&self.cam, self.th2);
+        let mut score = 0.0;
+        let mut inliers = 0usize;
+        let mut lambda = 0.0;
+        let r = &pose.rotation;
+        let t = &pose.translation;
+        for (p, q) in self.pw.iter().zip(&self.px) {
+            let x = r * p + t;
+            let e2 = if x.z > MIN_DEPTH {
+                let iz = 1.0 / x.z;
+                let du = cam.fx * x.x * iz + cam.cx - q.x;
+                let dv = cam.fy * x.y * iz + cam.cy - q.y;
+                du * du + dv * dv
+            } else {
+                f64::INFINITY
+            };
+            let inlier = e2 < th2;
+            if inlier {
+                score += e2;
+                inliers += 1;
+            } else {
+                score += th2;
+            }
+            if score >= best {
+                return Score::Rejected;
+            }
+            if let Some(s) = &sprt {
+                lambda += if inlier { s.log_in } else { s.log_out };
+                if lambda > s.log_a {
+                    return Score::Rejected;
+                }
+            }
+        }
+        Score::Better(score, inliers)
+    }
+
+    /// MSAC score and inlier count, no early exit.
+    fn score_full(&self, pose: &MapToCamera) -> (f64, usize) {
+        let mut score = 0.0;
+        let mut inliers = 0;
+        for (p, q) in self.pw.iter().zip(&self.px) {
+            let e2 = reproj_err2(&self.cam, pose, p, q);
+            if e2 < self.th2 {
+                score += e2;
+                inliers += 1;
+            } else {
+                score += self.th2;
+            }
+        }
+        (score, inliers)
+    }
+
+    fn collect_inliers(&self, pose: &MapToCamera, out: &mut Vec<usize>) {
+        out.clear();
+        for (i, (p, q)) in self.pw.iter().zip(&self.px).enumerate() {
+            if reproj_err2(&self.cam, pose, p, q) < self.th2 {
+                out.push(i);
+            }
+        }
+    }
+}
+
+fn validate(params: &PnpParams) -> Result<(), PnpError> {
+    if !(params.threshold_px.is_finite() && params.threshold_px > 0.0) {
+        return Err(PnpError::InvalidParams("threshold_px must be finite and > 0"));
+    }
+    if !(params.confidence > 0.0 && params.confidence <= 1.0) {
+        return Err(PnpError::InvalidParams("confidence must be in (0, 1]"));
+    }
+    if params.max_iterations == 0 {
+        return Err(PnpError::InvalidParams("max_iterations must be > 0"));
+    }
+    if !(params.loss_scale_px.is_finite() && params.loss_scale_px > 0.0) {
+        return Err(PnpError::InvalidParams("loss_scale_px must be finite and > 0"));
+    }
+    Ok(())
+}
+
+/// Rejects coincident or collinear map point sets.
+fn check_spread(pw: &[Vector3<f64>]) -> Result<(), PnpError> {
+    let n = pw.len() as f64;
+    let c = pw.iter().sum::<Vector3<f64>>() / n;
+    let mut cov = Matrix3::zeros();
+    for p in pw {
+        let d = p - c;
+        cov += d * d.transpose();
+    }
+    let mut ev: Vec<f64> = SymmetricEigen::new(cov).eigenvalues.iter().copied().collect();
+    ev.sort_by(|a, b| b.total_cmp(a));
+    if !(ev[0].is_finite() && ev[0] > 0.0) {
+        return Err(PnpError::Degenerate("map points coincide"));
+    }
+    if ev[1] <= 1e-10 * ev[0] {
+        return Err(PnpError::Degenerate("map points are collinear"));
+    }
+    Ok(())
+}
+
+/// Robust PnP: the camera-to-map pose from putative pixel ↔ map-point correspondences, most
+/// possibly wrong.
+///
+/// * `scores` (higher = more likely correct, one per correspondence) switch on PROSAC sampling
+///   from the top-ranked correspondences, growing to uniform; `None` samples uniformly
+///   (plain LO-RANSAC, which also serves as the baseline on raw correspondences).
+/// * Inliers: reprojection error below `params.threshold_px` and in front of the camera.
+/// * Deterministic for a given `seed`.
+/// * Non-finite correspondences are ignored (never inliers); errors for invalid intrinsics or
+///   parameters, mismatched lengths, fewer than `max(4, min_inliers)` usable correspondences,
+///   coincident/collinear map points, or no pose with `min_inliers` inliers.
+pub fn solve_pnp_ransac(
+    intrinsics: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+    scores: Option<&[f32]>,
+    params: &PnpParams,
+    seed: u64,
+) -> Result<PnpSolution, PnpError> {
+    check_basic(intrinsics, pixels.len(), points.len())?;
+    if let Some(s) = scores {
+        if s.len() != pixels.len() {
+            return Err(PnpError::LengthMismatch { pixels: pixels.len(), points: points.len(), scores: Some(s.len()) });
+        }
+    }
+    validate(params)?;
+    let (px0, pw0, orig0) = finite_pairs(pixels, points);
+    let n = px0.len();
+    let required = params.min_inliers.max(4);
+    if n < required {
+        return Err(PnpError::TooFewPoints { usable: n, required });
+    }
+    check_spread(&pw0)?;
+
+    let mut rng = WyRand::new(seed);
+    // Positions: a random order of the usable correspondences.
+    let mut order: Vec<usize> = (0..n).collect();
+    rng.shuffle(&mut order);
+    let cam = Cam::new(intrinsics);
+    let data = Data {
+        cam,
+        px: order.iter().map(|&i| px0[i]).collect(),
+        pw: order.iter().map(|&i| pw0[i]).collect(),
+        th2: params.threshold_px * params.threshold_px,
+    };
+    let orig: Vec<usize> = order.iter().map(|&i| orig0[i]).collect();
+    let bearings: Vec<Vector3<f64>> = data
+        .px
+        .iter()
+        .map(|p| Vector3::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy, 1.0).normalize())
+        .collect();
+    // Rank → position (best score first) for PROSAC.
+    let pos_of_rank: Option<Vec<usize>> = scores.map(|s| {
+        let key = |pos: usize| {
+            let v = s[orig[pos]];
+            if v.is_nan() { f32::NEG_INFINITY } else { v }
+        };
+        let mut ranks: Vec<usize> = (0..n).collect();
+        ranks.sort_by(|&a, &b| key(b).total_cmp(&key(a)).then(orig[a].cmp(&orig[b])));
+        ranks
+    });
+    let mut prosac = pos_of_rank.as_ref().map(|_| Prosac::new(n, params.max_iterations));
+
+    let sprt_keep = 1.0 - 1.0 / SPRT_A;
+    let mut best: Option<MapToCamera> = None;
+    let mut best_score = f64::INFINITY;
+    let mut best_inliers = 0usize;
+    let mut sprt: Option<Sprt> = None;
+    let mut needed = f64::INFINITY;
+    let mut idx_buf: Vec<usize> = Vec::with_capacity(n);
+    let mut flags: Vec<bool> = vec![false; n];
+    let lo_loss = Loss::new(RobustLoss::Trivial, 1.0);
+    let mut iterations = 0usize;
+
+    while iterations < params.max_iterations && (iterations < params.min_iterations || (iterations as f64) < needed) {
+        iterations += 1;
+        let s = match (&mut prosac, &pos_of_rank) {
+            (Some(p), Some(map)) => {
+                let r = p.sample(&mut rng);
+                [map[r[0]], map[r[1]], map[r[2]]]
+            }
+            _ => distinct3(&mut rng, n),
+        };
+        let sols = p3p_unit(&[bearings[s[0]], bearings[s[1]], bearings[s[2]]], &[data.pw[s[0]], data.pw[s[1]], data.pw[s[2]]]);
+        let mut improved = false;
+        for pose in sols.iter() {
+            let Score::Better(score, inliers) = data.score_bounded(pose, best_score, sprt) else { continue };
+            let (mut pose, mut score, mut inliers) = (*pose, score, inliers);
+            if params.local_optimization && inliers >= 4 {
+                for _ in 0..LO_ROUNDS {
+                    data.collect_inliers(&pose, &mut idx_buf);
+                    if idx_buf.len() < 4 {
+                        break;
+                    }
+                    let (cand, _, _) = lm_refine(&cam, &data.px, &data.pw, &idx_buf, pose, &lo_loss, LO_LM_ITERATIONS);
+                    let (cs, ci) = data.score_full(&cand);
+                    if cs < score {
+                        let grew = ci > inliers;
+                        (pose, score, inliers) = (cand, cs, ci);
+                        if !grew {
+                            break;
+                        }
+                    } else {
+                        break;
+                    }
+                }
+            }
+            best = Some(pose);
+            best_score = score;
+            best_inliers = inliers;
+            improved = true;
+        }
+        if let (true, Some(pose)) = (improved, &best) {
+            sprt = Sprt::new(best_inliers as f64 / n as f64);
+            needed = match &pos_of_rank {
+                None => samples_needed(best_inliers as f64 / n as f64, params.confidence, sprt_keep),
+                Some(map) => {
+                    for (pos, f) in flags.iter_mut().enumerate() {
+                        *f = reproj_err2(&cam, pose, &data.pw[pos], &data.px[pos]) < data.th2;
+                    }
+                    prosac_needed(map, &flags, params, sprt_keep)
+                }
+            };
+        }
+    }
+
+    let Some(mut pose) = best else {
+        return Err(PnpError::NoConsensus { inliers: 0, required });
+    };
+    if params.refine {
+        let loss = Loss::new(params.loss, params.loss_scale_px);
+        let mut prev: Vec<usize> = Vec::new();
+        data.collect_inliers(&pose, &mut idx_buf);
+        for _ in 0..FINAL_ROUNDS {
+            if idx_buf.len() < 4 || idx_buf == prev {
+                break;
+            }
+            let (cand, _, _) = lm_refine(&cam, &data.px, &data.pw, &idx_buf, pose, &loss, FINAL_LM_ITERATIONS);
+            std::mem::swap(&mut prev, &mut idx_buf);
+            data.collect_inliers(&cand, &mut idx_buf);
+            if idx_buf.len() < required.min(prev.len()) {
+                // Refinement lost the consensus: keep the unrefined pose.
+                std::mem::swap(&mut prev, &mut idx_buf);
+                break;
+            }
+            pose = cand;
+        }
+    }
+    data.collect_inliers(&pose, &mut idx_buf);
+    let num_inliers = idx_buf.len();
+    if num_inliers < required {
+        return Err(PnpError::NoConsensus { inliers: num_inliers, required });
+    }
+    let sq: f64 = idx_buf.iter().map(|&i| reproj_err2(&cam, &pose, &data.pw[i], &data.px[i])).sum();
+    let rmse_px = (sq / num_inliers as f64).sqrt();
+    let cov = covariance(&cam, &data.px, &data.pw, &idx_buf, &pose).ok_or(PnpError::Degenerate("pose covariance is not finite"))?;
+    let mut inliers = vec![false; pixels.len()];
+    for &i in &idx_buf {
+        inliers[orig[i]] = true;
+    }
+    Ok(PnpSolution { pose: pose.to_camera_to_map(), inliers, num_inliers, iterations, rmse_px, covariance: cov })
+}
+
+/// PROSAC stopping length: the fewest samples over prefix lengths `n*` whose best-model inliers
+/// `I(n*)` pass the non-randomness test, using the inlier ratio `I(n*)/n*` of that prefix.
+fn prosac_needed(pos_of_rank: &[usize], inlier_at_pos: &[bool], params: &PnpParams, sprt_keep: f64) -> f64 {
+    let n = pos_of_rank.len();
+    let mut count = 0usize;
+    let mut needed = f64::INFINITY;
+    let min_len = 10.min(n);
+    for (r, &pos) in pos_of_rank.iter().enumerate() {
+        count += inlier_at_pos[pos] as usize;
+        let len = r + 1;
+        if len < min_len {
+            continue;
+        }
+        let k = (len - M) as f64;
+        let i_min = M as f64 + NONRANDOM_BETA * k + NONRANDOM_Z * (NONRANDOM_BETA * (1.0 - NONRANDOM_BETA) * k).sqrt();
+        if (count as f64) < i_min || count < params.min_inliers.max(4) {
+            continue;
+        }
+        needed = needed.min(samples_needed(count as f64 / len as f64, params.confidence, sprt_keep));
+    }
+    needed
+}
+
+/// Non-minimal PnP: EPnP on all finite correspondences (≥ 4 non-planar map points, assumed
+/// inliers) then Levenberg–Marquardt on the reprojection error. The pose is camera-to-map.
+pub fn solve_pnp_nonminimal(
+    intrinsics: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+    options: &RefineOptions,
+) -> Result<RefineResult, PnpError> {
+    check_basic(intrinsics, pixels.len(), points.len())?;
+    let (px, pw, _) = finite_pairs(pixels, points);
+    if px.len() < 4 {
+        return Err(PnpError::TooFewPoints { usable: px.len(), required: 4 });
+    }
+    let cam = Cam::new(intrinsics);
+    let uv: Vec<Vector2<f64>> = px.iter().map(|p| Vector2::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy)).collect();
+    let init = epnp_normalized(&uv, &pw)?;
+    let idx: Vec<usize> = (0..px.len()).collect();
+    let loss = Loss::new(options.loss, options.loss_scale_px);
+    let (pose, cost, iterations) = lm_refine(&cam, &px, &pw, &idx, init, &loss, options.max_iterations);
+    let (mut sq, mut k) = (0.0, 0usize);
+    for i in 0..px.len() {
+        let e = reproj_err2(&cam, &pose, &pw[i], &px[i]);
+        if e.is_finite() {
+            sq += e;
+            k += 1;
+        }
+    }
+    let rmse_px = if k > 0 { (sq / k as f64).sqrt() } else { f64::INFINITY };
+    Ok(RefineResult { pose: pose.to_camera_to_map(), cost, rmse_px, iterations })
+}

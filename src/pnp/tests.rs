@@ -1,0 +1,364 @@
+use super::rng::WyRand;
+use super::*;
+use crate::geometry::Intrinsics;
+use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
+use proptest::prelude::*;
+
+fn k() -> Intrinsics {
+    Intrinsics { fx: 600.0, fy: 580.0, cx: 320.0, cy: 240.0, width: 640, height: 480 }
+}
+
+fn uniform(rng: &mut WyRand, lo: f64, hi: f64) -> f64 {
+    lo + (hi - lo) * (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+}
+
+fn normal(rng: &mut WyRand) -> f64 {
+    let u1 = uniform(rng, 1e-12, 1.0);
+    let u2 = uniform(rng, 0.0, 1.0);
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+/// A random camera-to-map pose.
+fn random_pose(rng: &mut WyRand) -> Isometry3<f64> {
+    let axis = Vector3::new(normal(rng), normal(rng), normal(rng));
+    let angle = uniform(rng, 0.0, std::f64::consts::PI);
+    let q = UnitQuaternion::from_scaled_axis(axis.normalize() * angle);
+    let t = Vector3::new(uniform(rng, -20.0, 20.0), uniform(rng, -20.0, 20.0), uniform(rng, -5.0, 5.0));
+    Isometry3::from_parts(Translation3::from(t), q)
+}
+
+/// Visible map points with their (noisy) pixels under camera-to-map `pose`.
+fn visible(rng: &mut WyRand, pose: &Isometry3<f64>, n: usize, noise_px: f64) -> (Vec<Point2<f64>>, Vec<Point3<f64>>) {
+    let intr = k();
+    let mut px = Vec::with_capacity(n);
+    let mut pw = Vec::with_capacity(n);
+    for _ in 0..n {
+        let p = Point2::new(uniform(rng, 0.0, 640.0), uniform(rng, 0.0, 480.0));
+        let xc = intr.back_project(&p, uniform(rng, 2.0, 25.0));
+        pw.push(pose * xc);
+        px.push(Point2::new(p.x + noise_px * normal(rng), p.y + noise_px * normal(rng)));
+    }
+    (px, pw)
+}
+
+/// Replaces a fraction of the correspondences by random pixel ↔ map point pairs; returns the
+/// ground-truth inlier flags.
+fn corrupt(rng: &mut WyRand, px: &mut [Point2<f64>], pw: &[Point3<f64>], outlier_ratio: f64) -> Vec<bool> {
+    let n = px.len();
+    let n_out = (n as f64 * outlier_ratio).round() as usize;
+    let mut idx: Vec<usize> = (0..n).collect();
+    rng.shuffle(&mut idx);
+    let mut truth = vec![true; n];
+    for &i in &idx[..n_out] {
+        px[i] = Point2::new(uniform(rng, 0.0, 640.0), uniform(rng, 0.0, 480.0));
+        truth[i] = false;
+    }
+    let _ = pw;
+    truth
+}
+
+fn pose_error(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
+    let d = a.inverse() * b;
+    (d.rotation.angle(), (a.translation.vector - b.translation.vector).norm())
+}
+
+fn check_p3p(seed: u64) -> Result<(), String> {
+    let mut rng = WyRand::new(seed);
+    let pose = random_pose(&mut rng);
+    let (px, pw) = visible(&mut rng, &pose, 3, 0.0);
+    let intr = k();
+    let bearings = [intr.bearing(&px[0]), intr.bearing(&px[1]), intr.bearing(&px[2])];
+    let sols = p3p(&bearings, &[pw[0], pw[1], pw[2]]);
+    if sols.is_empty() {
+        return Err(format!("seed {seed}: no solution"));
+    }
+    let best = sols
+        .iter()
+        .map(|s| pose_error(&s.to_camera_to_map(), &pose))
+        .min_by(|a, b| (a.0 + a.1).total_cmp(&(b.0 + b.1)))
+        .unwrap();
+    if best.0 < 1e-6 && best.1 < 1e-5 {
+        Ok(())
+    } else {
+        Err(format!("seed {seed}: error {best:?}"))
+    }
+}
+
+#[test]
+fn p3p_recovers_exact_pose() {
+    let mut failures = Vec::new();
+    for seed in 0..2000 {
+        if let Err(e) = check_p3p(seed) {
+            failures.push(e);
+        }
+    }
+    // Random triples include a few badly conditioned ones; those must be rare.
+    assert!(failures.len() <= 4, "{} failures: {:?}", failures.len(), &failures[..failures.len().min(5)]);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+    #[test]
+    fn p3p_solutions_reproject_their_sample(seed in any::<u64>()) {
+        let mut rng = WyRand::new(seed);
+        let pose = random_pose(&mut rng);
+        let (px, pw) = visible(&mut rng, &pose, 3, 0.0);
+        let intr = k();
+        let bearings = [intr.bearing(&px[0]), intr.bearing(&px[1]), intr.bearing(&px[2])];
+        let sols = p3p(&bearings, &[pw[0], pw[1], pw[2]]);
+        prop_assert!(sols.len() <= 4);
+        // Every returned pose is a proper rigid motion that reprojects the three points.
+        for s in sols.iter() {
+            prop_assert!((s.rotation.determinant() - 1.0).abs() < 1e-9);
+            for i in 0..3 {
+                let xc = s.transform_point(&pw[i]);
+                prop_assert!(xc.z > 0.0);
+                let q = intr.project(&xc).unwrap();
+                prop_assert!((q - px[i]).norm() < 1e-4, "reprojection {}", (q - px[i]).norm());
+            }
+        }
+    }
+}
+
+#[test]
+fn p3p_rejects_degenerate_samples() {
+    let y = [Vector3::new(0.0, 0.0, 1.0), Vector3::new(0.1, 0.0, 1.0), Vector3::new(0.0, 0.1, 1.0)];
+    let collinear = [Point3::new(0.0, 0.0, 5.0), Point3::new(1.0, 0.0, 5.0), Point3::new(2.0, 0.0, 5.0)];
+    assert!(p3p(&y, &collinear).is_empty());
+    let coincident = [Point3::new(0.0, 0.0, 5.0), Point3::new(0.0, 0.0, 5.0), Point3::new(2.0, 0.0, 5.0)];
+    assert!(p3p(&y, &coincident).is_empty());
+    let pts = [Point3::new(0.0, 0.0, 5.0), Point3::new(1.0, 0.0, 5.0), Point3::new(0.0, 1.0, 5.0)];
+    assert!(p3p(&[y[0], y[0], y[2]], &pts).is_empty());
+    assert!(p3p(&[Vector3::new(f64::NAN, 0.0, 1.0), y[1], y[2]], &pts).is_empty());
+    assert!(p3p(&[Vector3::zeros(), y[1], y[2]], &pts).is_empty());
+}
+
+#[test]
+fn epnp_and_nonminimal_recover_exact_pose() {
+    let mut rng = WyRand::new(7);
+    for n in [4usize, 6, 20, 200] {
+        for _ in 0..20 {
+            let pose = random_pose(&mut rng);
+            let (px, pw) = visible(&mut rng, &pose, n, 0.0);
+            let e = epnp(&k(), &px, &pw).unwrap();
+            let (r, t) = pose_error(&e, &pose);
+            if n >= 6 {
+                assert!(r < 1e-6 && t < 1e-5, "epnp n={n}: {r} {t}");
+            }
+            let s = solve_pnp_nonminimal(&k(), &px, &pw, &RefineOptions::default()).unwrap();
+            let (r, t) = pose_error(&s.pose, &pose);
+            // With 4 points EPnP can pick a wrong branch; LM then stays in its basin.
+            if n >= 6 {
+                assert!(r < 1e-8 && t < 1e-7, "nonminimal n={n}: {r} {t}");
+                assert!(s.rmse_px < 1e-6);
+            }
+        }
+    }
+}
+
+#[test]
+fn nonminimal_with_noise_is_accurate() {
+    let mut rng = WyRand::new(11);
+    let pose = random_pose(&mut rng);
+    let (px, pw) = visible(&mut rng, &pose, 100, 1.0);
+    let s = solve_pnp_nonminimal(&k(), &px, &pw, &RefineOptions::default()).unwrap();
+    let (r, t) = pose_error(&s.pose, &pose);
+    assert!(r < 2e-3 && t < 0.05, "{r} {t}");
+    // RMS of the 2D residual norm: √2·σ for σ = 1 px per axis.
+    assert!((s.rmse_px - 2f64.sqrt()).abs() < 0.3, "{}", s.rmse_px);
+}
+
+#[test]
+fn lm_converges_from_perturbed_pose() {
+    let mut rng = WyRand::new(3);
+    for _ in 0..20 {
+        let pose = random_pose(&mut rng);
+        let (px, pw) = visible(&mut rng, &pose, 50, 0.0);
+        let delta = Isometry3::from_parts(
+            Translation3::new(0.3 * normal(&mut rng), 0.3 * normal(&mut rng), 0.3 * normal(&mut rng)),
+            UnitQuaternion::from_scaled_axis(Vector3::new(normal(&mut rng), normal(&mut rng), normal(&mut rng)) * 0.05),
+        );
+        let start = pose * delta;
+        for loss in [RobustLoss::Trivial, RobustLoss::Huber, RobustLoss::Cauchy] {
+            let opts = RefineOptions { max_iterations: 100, loss, loss_scale_px: 2.0 };
+            let r = refine_pose(&k(), &px, &pw, &start, &opts).unwrap();
+            let (er, et) = pose_error(&r.pose, &pose);
+            assert!(er < 1e-8 && et < 1e-7, "{loss:?}: {er} {et}");
+        }
+    }
+}
+
+fn scenario(seed: u64, n: usize, outlier_ratio: f64) -> (Isometry3<f64>, Vec<Point2<f64>>, Vec<Point3<f64>>, Vec<bool>) {
+    let mut rng = WyRand::new(seed);
+    let pose = random_pose(&mut rng);
+    let (mut px, pw) = visible(&mut rng, &pose, n, 1.0);
+    let truth = corrupt(&mut rng, &mut px, &pw, outlier_ratio);
+    (pose, px, pw, truth)
+}
+
+#[test]
+fn ransac_finds_pose_with_80_percent_outliers() {
+    for seed in 0..5 {
+        let (pose, px, pw, truth) = scenario(100 + seed, 500, 0.8);
+        let sol = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), seed).unwrap();
+        let (r, t) = pose_error(&sol.pose, &pose);
+        assert!(r < 5e-3 && t < 0.1, "seed {seed}: {r} {t}");
+        let true_inliers = truth.iter().filter(|&&b| b).count();
+        let agree = sol.inliers.iter().zip(&truth).filter(|(a, b)| **a && **b).count();
+        assert!(agree as f64 > 0.97 * true_inliers as f64, "{agree}/{true_inliers}");
+        assert!(sol.num_inliers < true_inliers + 10);
+        assert!(sol.rmse_px < 2.0, "{}", sol.rmse_px);
+        assert!(sol.iterations >= 100 && sol.iterations <= 10_000);
+    }
+}
+
+#[test]
+fn prosac_needs_fewer_iterations_when_scores_rank_inliers_high() {
+    let mut uniform_iters = 0;
+    let mut prosac_iters = 0;
+    for seed in 0..4 {
+        let (pose, px, pw, truth) = scenario(200 + seed, 1000, 0.85);
+        let mut rng = WyRand::new(seed);
+        // Inliers score higher on average, with overlap.
+        let scores: Vec<f32> =
+            truth.iter().map(|&t| if t { uniform(&mut rng, 0.4, 1.0) } else { uniform(&mut rng, 0.0, 0.7) } as f32).collect();
+        let params = PnpParams::default();
+        let u = solve_pnp_ransac(&k(), &px, &pw, None, &params, seed).unwrap();
+        let p = solve_pnp_ransac(&k(), &px, &pw, Some(&scores), &params, seed).unwrap();
+        for s in [&u, &p] {
+            let (r, t) = pose_error(&s.pose, &pose);
+            assert!(r < 5e-3 && t < 0.1, "seed {seed}: {r} {t}");
+        }
+        uniform_iters += u.iterations;
+        prosac_iters += p.iterations;
+    }
+    assert!(prosac_iters * 3 < uniform_iters, "prosac {prosac_iters} vs uniform {uniform_iters}");
+}
+
+#[test]
+fn ransac_is_deterministic_for_a_seed() {
+    let (_, px, pw, _) = scenario(5, 300, 0.7);
+    let a = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), 42).unwrap();
+    let b = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), 42).unwrap();
+    assert_eq!(a, b);
+}
+
+#[test]
+fn pose_is_camera_to_map() {
+    let (pose, px, pw, _) = scenario(9, 200, 0.0);
+    let sol = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), 1).unwrap();
+    // x_map = pose * x_cam: the camera centre in the map is the pose's translation.
+    assert!((sol.pose.translation.vector - pose.translation.vector).norm() < 0.05);
+    let xc = sol.pose.inverse() * pw[0];
+    let q = k().project(&xc).unwrap();
+    assert!((q - px[0]).norm() < 5.0);
+}
+
+#[test]
+fn degenerate_and_invalid_inputs_are_errors() {
+    let intr = k();
+    let params = PnpParams::default();
+    // Too few points.
+    let (_, px, pw, _) = scenario(1, 3, 0.0);
+    assert!(matches!(solve_pnp_ransac(&intr, &px, &pw, None, &params, 0), Err(PnpError::TooFewPoints { .. })));
+    assert!(solve_pnp_nonminimal(&intr, &px, &pw, &RefineOptions::default()).is_err());
+    assert!(epnp(&intr, &px, &pw).is_err());
+    // Collinear map points.
+    let pw: Vec<Point3<f64>> = (0..50).map(|i| Point3::new(i as f64 * 0.1, 0.0, 5.0)).collect();
+    let px: Vec<Point2<f64>> = pw.iter().map(|p| intr.project(p).unwrap()).collect();
+    assert!(matches!(solve_pnp_ransac(&intr, &px, &pw, None, &params, 0), Err(PnpError::Degenerate(_))));
+    assert!(solve_pnp_nonminimal(&intr, &px, &pw, &RefineOptions::default()).is_err());
+    // All NaN.
+    let nan_px = vec![Point2::new(f64::NAN, 1.0); 50];
+    let nan_pw = vec![Point3::new(1.0, f64::NAN, 1.0); 50];
+    assert!(matches!(solve_pnp_ransac(&intr, &nan_px, &nan_pw, None, &params, 0), Err(PnpError::TooFewPoints { .. })));
+    assert!(solve_pnp_nonminimal(&intr, &nan_px, &nan_pw, &RefineOptions::default()).is_err());
+    assert!(refine_pose(&intr, &nan_px, &nan_pw, &Isometry3::identity(), &RefineOptions::default()).is_err());
+    // Bad intrinsics, lengths, parameters.
+    let (_, px, pw, _) = scenario(2, 50, 0.0);
+    let bad = Intrinsics { fx: f64::NAN, ..intr };
+    assert_eq!(solve_pnp_ransac(&bad, &px, &pw, None, &params, 0), Err(PnpError::InvalidIntrinsics));
+    assert!(matches!(solve_pnp_ransac(&intr, &px[..10], &pw, None, &params, 0), Err(PnpError::LengthMismatch { .. })));
+    assert!(matches!(solve_pnp_ransac(&intr, &px, &pw, Some(&[1.0; 3]), &params, 0), Err(PnpError::LengthMismatch { .. })));
+    let p = PnpParams { threshold_px: f64::NAN, ..params.clone() };
+    assert!(matches!(solve_pnp_ransac(&intr, &px, &pw, None, &p, 0), Err(PnpError::InvalidParams(_))));
+    // Pure outliers: no consensus (or, by chance, a tiny one), never a panic.
+    let mut rng = WyRand::new(3);
+    let rnd_px: Vec<Point2<f64>> = (0..100).map(|_| Point2::new(uniform(&mut rng, 0.0, 640.0), uniform(&mut rng, 0.0, 480.0))).collect();
+    let rnd_pw: Vec<Point3<f64>> =
+        (0..100).map(|_| Point3::new(uniform(&mut rng, -5.0, 5.0), uniform(&mut rng, -5.0, 5.0), uniform(&mut rng, 1.0, 9.0))).collect();
+    let strict = PnpParams { min_inliers: 20, ..params.clone() };
+    assert!(matches!(solve_pnp_ransac(&intr, &rnd_px, &rnd_pw, None, &strict, 0), Err(PnpError::NoConsensus { .. })));
+}
+
+#[test]
+fn non_finite_correspondences_are_ignored() {
+    let (pose, mut px, mut pw, _) = scenario(4, 200, 0.5);
+    px[3] = Point2::new(f64::NAN, 0.0);
+    pw[7] = Point3::new(f64::INFINITY, 0.0, 1.0);
+    let mut scores = vec![0.5f32; 200];
+    scores[9] = f32::NAN;
+    let sol = solve_pnp_ransac(&k(), &px, &pw, Some(&scores), &PnpParams::default(), 0).unwrap();
+    assert!(!sol.inliers[3] && !sol.inliers[7]);
+    let (r, t) = pose_error(&sol.pose, &pose);
+    assert!(r < 5e-3 && t < 0.1, "{r} {t}");
+}
+
+fn is_psd(c: &nalgebra::Matrix6<f64>) -> bool {
+    let eig = nalgebra::SymmetricEigen::new(*c);
+    eig.eigenvalues.iter().all(|&l| l >= -1e-12 * eig.eigenvalues.amax())
+}
+
+#[test]
+fn covariance_is_symmetric_psd_and_shrinks_with_more_points() {
+    let mut traces = Vec::new();
+    for n in [40usize, 400] {
+        let mut rng = WyRand::new(77);
+        let pose = random_pose(&mut rng);
+        let (px, pw) = visible(&mut rng, &pose, n, 1.0);
+        let sol = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), 0).unwrap();
+        let c = sol.covariance;
+        assert!((c - c.transpose()).amax() <= 1e-12 * c.amax());
+        assert!(is_psd(&c));
+        let direct = pose_covariance(&k(), &px, &pw, &sol.pose).unwrap();
+        assert!((direct - c).amax() < 1e-6 * c.amax() + 1e-15);
+        // Position standard deviation roughly matches the actual error scale.
+        traces.push(c.trace());
+    }
+    assert!(traces[1] < 0.3 * traces[0], "{traces:?}");
+}
+
+#[test]
+fn covariance_matches_monte_carlo_spread() {
+    // Fixed geometry, many noise draws: the empirical position spread matches the predicted one.
+    let mut rng = WyRand::new(5);
+    let pose = random_pose(&mut rng);
+    let (clean, pw) = visible(&mut rng, &pose, 60, 0.0);
+    let mut errs = Vec::new();
+    let mut predicted = nalgebra::Matrix6::zeros();
+    let runs = 200;
+    for _ in 0..runs {
+        let px: Vec<Point2<f64>> = clean.iter().map(|p| Point2::new(p.x + normal(&mut rng), p.y + normal(&mut rng))).collect();
+        let s = solve_pnp_nonminimal(&k(), &px, &pw, &RefineOptions::default()).unwrap();
+        predicted += pose_covariance(&k(), &px, &pw, &s.pose).unwrap() / runs as f64;
+        let d = s.pose.translation.vector - pose.translation.vector;
+        // Rotation error in the map frame: R_est = exp([δθ]) R_true.
+        let dr = (s.pose.rotation * pose.rotation.inverse()).scaled_axis();
+        errs.push(nalgebra::Vector6::new(d.x, d.y, d.z, dr.x, dr.y, dr.z));
+    }
+    for i in 0..6 {
+        let emp = errs.iter().map(|e| e[i] * e[i]).sum::<f64>() / runs as f64;
+        let ratio = emp / predicted[(i, i)];
+        assert!((0.6..1.6).contains(&ratio), "axis {i}: empirical {emp} predicted {} ratio {ratio}", predicted[(i, i)]);
+    }
+}
+
+#[test]
+fn params_deserialize_with_defaults() {
+    let p: PnpParams = serde_yaml::from_str("threshold_px: 4.0\nloss: cauchy\n").unwrap();
+    assert_eq!(p.threshold_px, 4.0);
+    assert_eq!(p.loss, RobustLoss::Cauchy);
+    assert_eq!(p.max_iterations, 10_000);
+    assert_eq!(p.min_inliers, 6);
+    assert_eq!(p.confidence, 0.9999);
+}

@@ -1,0 +1,226 @@
+//! Putative 2D–3D correspondences of one frame: true inliers, uniform outliers and
+//! patch-wise outliers moved by one rigid motion per patch (as `patch_outliers` in
+//! `make_rgbd_bags.py`), with matcher-like scores.
+
+use nalgebra::{Isometry3, Point2, Point3, UnitQuaternion, Vector3};
+use rand::rngs::StdRng;
+use rand::RngExt;
+use rand_distr::{Beta, Distribution};
+
+use super::{gaussian3, lift_pixel, Render, Scene, SynthConfig};
+use crate::frame::{Correspondence, MapCloud};
+use crate::geometry::{Intrinsics, PointIndex};
+
+/// How a correspondence was made.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CorrLabel {
+    /// The true surface point of the pixel (plus noise).
+    Inlier,
+    /// A wrong point: another visible surface point or a random map point.
+    Outlier,
+    /// Moved with patch `patch` by that patch's rigid motion; `base_inlier` says whether
+    /// the point was a true one before moving.
+    Patch { patch: u32, base_inlier: bool },
+}
+
+pub(crate) struct CorrInputs<'a> {
+    pub scene: &'a Scene,
+    pub config: &'a SynthConfig,
+    pub intrinsics: &'a Intrinsics,
+    pub pose: &'a Isometry3<f64>,
+    pub render: &'a Render,
+    pub map: &'a MapCloud,
+    pub index: Option<&'a PointIndex>,
+}
+
+pub(crate) struct Generated {
+    pub correspondences: Vec<Correspondence>,
+    pub labels: Vec<CorrLabel>,
+    pub patches: usize,
+}
+
+struct Candidate {
+    pixel: Point2<f64>,
+    /// The point an inlier gets (true surface point, maybe snapped, plus noise).
+    inlier_point: Point3<f64>,
+    /// Whether `inlier_point` passes the ground-truth inlier test at `pixel`.
+    inlier_ok: bool,
+}
+
+/// A uniform index below `len` (> 0).
+fn pick(rng: &mut StdRng, len: usize) -> usize {
+    ((rng.random::<f64>() * len as f64) as usize).min(len.saturating_sub(1))
+}
+
+fn shuffle<T>(items: &mut [T], rng: &mut StdRng) {
+    for i in (1..items.len()).rev() {
+        let j = pick(rng, i + 1);
+        items.swap(i, j);
+    }
+}
+
+/// Scores like 1 − Lowe ratio: overlapping, inliers slightly higher.
+struct Scores {
+    inlier: Option<Beta<f64>>,
+    outlier: Option<Beta<f64>>,
+}
+
+impl Scores {
+    fn new() -> Self {
+        Self { inlier: Beta::new(3.0, 5.0).ok(), outlier: Beta::new(1.6, 5.0).ok() }
+    }
+
+    fn sample(&self, inlier: bool, rng: &mut StdRng) -> f32 {
+        let d = if inlier { &self.inlier } else { &self.outlier };
+        let s = match d {
+            Some(d) => d.sample(rng),
+            None => rng.random::<f64>(),
+        };
+        s.clamp(0.0, 1.0) as f32
+    }
+}
+
+pub(crate) fn correspondences(inp: &CorrInputs, rng: &mut StdRng) -> Generated {
+    let c = inp.config;
+    let thr = c.inlier_threshold_m;
+    let (w, h) = (inp.intrinsics.width as f64, inp.intrinsics.height as f64);
+    let origin = Point3::from(inp.pose.translation.vector);
+    let rot = inp.pose.rotation;
+    let depth = &inp.render.depth;
+    let lift = |p: &Point2<f64>| lift_pixel(inp.intrinsics, inp.pose, depth, p);
+
+    // 1. Pixels with their true surface points; each must be able to be a ground-truth
+    //    inlier (keeps pixels off depth edges and grazing spots where noise breaks the test).
+    let mut cands: Vec<Candidate> = Vec::with_capacity(c.correspondences);
+    for _ in 0..c.correspondences {
+        let mut best: Option<Candidate> = None;
+        for _ in 0..50 {
+            let truth_px = Point2::new(rng.random::<f64>() * (w - 1.0), rng.random::<f64>() * (h - 1.0));
+            let d_cam = Vector3::new((truth_px.x - inp.intrinsics.cx) / inp.intrinsics.fx, (truth_px.y - inp.intrinsics.cy) / inp.intrinsics.fy, 1.0);
+            let dir = rot * d_cam;
+            let Some(hit) = inp.scene.cast(&origin, &dir) else { continue };
+            let truth = origin + dir * hit.toi;
+            let noise = gaussian3(rng, 1.0);
+            let pixel = Point2::new(
+                (truth_px.x + noise.x * c.pixel_noise_px).clamp(0.0, w - 1.0),
+                (truth_px.y + noise.y * c.pixel_noise_px).clamp(0.0, h - 1.0),
+            );
+            let snapped = inp
+                .index
+                .and_then(|index| {
+                    let q = Point3::new(truth.x as f32, truth.y as f32, truth.z as f32);
+                    index.nearest(&q, 1).first().and_then(|&i| inp.map.points.get(i)).map(|p| p.cast::<f64>())
+                })
+                .unwrap_or(truth);
+            let inlier_point = snapped + gaussian3(rng, c.map_noise_m);
+            let inlier_ok = lift(&pixel).is_some_and(|l| (l - inlier_point).norm() < 0.9 * thr);
+            let cand = Candidate { pixel, inlier_point, inlier_ok };
+            if inlier_ok {
+                best = Some(cand);
+                break;
+            }
+            best.get_or_insert(cand);
+        }
+        if let Some(b) = best {
+            cands.push(b);
+        }
+    }
+    let m = cands.len();
+
+    // 2. Patches, exactly as `patch_outliers`: a random correspondence's pixel, all not yet
+    //    moved correspondences within the radius, until the requested share is moved.
+    let target = (c.patch_outlier_fraction * m as f64) as usize;
+    let mut patch_of: Vec<Option<usize>> = vec![None; m];
+    let mut patches: Vec<Vec<usize>> = Vec::new();
+    let mut moved = 0;
+    let mut guard = 0;
+    while moved < target && m > 0 && guard < 100 * m + 100 {
+        guard += 1;
+        let centre = cands[pick(rng, m)].pixel;
+        let sel: Vec<usize> = (0..m).filter(|&j| patch_of[j].is_none() && (cands[j].pixel - centre).norm() < c.patch_radius_px).collect();
+        if sel.is_empty() {
+            continue;
+        }
+        for &j in &sel {
+            patch_of[j] = Some(patches.len());
+        }
+        moved += sel.len();
+        patches.push(sel);
+    }
+
+    // 3. Inliers among the unmoved so that the overall ratio hits the configured one.
+    let unmoved: Vec<usize> = (0..m).filter(|&j| patch_of[j].is_none()).collect();
+    let mut eligible: Vec<usize> = unmoved.iter().copied().filter(|&j| cands[j].inlier_ok).collect();
+    shuffle(&mut eligible, rng);
+    let k = ((c.inlier_ratio * m as f64).round() as usize).min(eligible.len());
+    let mut is_inlier = vec![false; m];
+    for &j in &eligible[..k] {
+        is_inlier[j] = true;
+    }
+    // Moved points were inliers before moving as often as the unmoved are (the matcher's
+    // raw ratio), as when the real bags' patches were moved.
+    let base_ratio = if unmoved.is_empty() { c.inlier_ratio } else { k as f64 / unmoved.len() as f64 };
+
+    // 4. Points and scores.
+    let scores = Scores::new();
+    let visible: Vec<usize> = (0..inp.render.points.len()).filter(|&i| inp.render.points[i].x.is_finite()).collect();
+    let outlier_point = |pixel: &Point2<f64>, rng: &mut StdRng| -> Point3<f64> {
+        let lifted = lift(pixel);
+        let mut p = Point3::origin();
+        for _ in 0..30 {
+            let use_visible = !visible.is_empty() && (inp.map.points.is_empty() || rng.random::<f64>() < c.visible_outlier_fraction);
+            let base = if use_visible {
+                inp.render.points[visible[pick(rng, visible.len())]]
+            } else if !inp.map.points.is_empty() {
+                inp.map.points[pick(rng, inp.map.points.len())].cast::<f64>()
+            } else {
+                p
+            };
+            p = base + gaussian3(rng, c.map_noise_m);
+            if lifted.is_none_or(|l| (l - p).norm() >= 1.5 * thr) {
+                break;
+            }
+        }
+        p
+    };
+    let mut correspondences = Vec::with_capacity(m);
+    let mut labels = Vec::with_capacity(m);
+    for j in 0..m {
+        let base_inlier = match patch_of[j] {
+            None => is_inlier[j],
+            Some(_) => cands[j].inlier_ok && rng.random::<f64>() < base_ratio,
+        };
+        let point = if base_inlier { cands[j].inlier_point } else { outlier_point(&cands[j].pixel, rng) };
+        let score = scores.sample(base_inlier, rng);
+        let label = match patch_of[j] {
+            None if base_inlier => CorrLabel::Inlier,
+            None => CorrLabel::Outlier,
+            Some(p) => CorrLabel::Patch { patch: p as u32, base_inlier },
+        };
+        correspondences.push(Correspondence { pixel: cands[j].pixel, point, score });
+        labels.push(label);
+    }
+
+    // 5. One rigid motion per patch about its centroid, redrawn while any of its points
+    //    would still pass the ground-truth inlier test.
+    for members in &patches {
+        let base: Vec<Point3<f64>> = members.iter().map(|&j| correspondences[j].point).collect();
+        let centroid = Point3::from(base.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / base.len().max(1) as f64);
+        let lifted: Vec<Option<Point3<f64>>> = members.iter().map(|&j| lift(&correspondences[j].pixel)).collect();
+        let mut moved_points = base.clone();
+        for _ in 0..30 {
+            let r = UnitQuaternion::from_scaled_axis(gaussian3(rng, c.patch_rotation_sigma));
+            let t = gaussian3(rng, c.patch_translation_sigma);
+            moved_points = base.iter().map(|p| centroid + r * (p - centroid) + t).collect();
+            let far = moved_points.iter().zip(&lifted).all(|(p, l)| l.is_none_or(|l| (l - p).norm() >= 1.5 * thr));
+            if far {
+                break;
+            }
+        }
+        for (&j, p) in members.iter().zip(moved_points) {
+            correspondences[j].point = p;
+        }
+    }
+
+    Generated { correspondences, labels, patches: patches.len() }
+}
