@@ -168,7 +168,9 @@ pub struct ScaleShiftParams {
     pub global_pairs: usize,
     /// Shifts tried, as a fraction of the median prior depth: −range..=range.
     pub shift_range: f64,
+    /// Coarse grid of shifts, then `fine_steps` on each side of the best between its neighbours.
     pub shift_steps: usize,
+    pub fine_steps: usize,
     /// Width of the voting window on log(scale).
     pub log_scale_window: f64,
     /// Pairs shorter than this on the map (metres) do not vote.
@@ -182,9 +184,10 @@ impl Default for ScaleShiftParams {
     fn default() -> Self {
         Self {
             local_neighbours: 10,
-            global_pairs: 8000,
+            global_pairs: 4000,
             shift_range: 0.6,
-            shift_steps: 25,
+            shift_steps: 9,
+            fine_steps: 3,
             log_scale_window: 0.06,
             min_pair_length: 0.05,
             refine_iterations: 5,
@@ -224,28 +227,39 @@ pub fn estimate_scale_shift(
     let map_len: Vec<f64> = pairs.iter().map(|&(i, j)| (map[i as usize] - map[j as usize]).norm()).collect();
     let median_depth = median(prior_depth[..n].iter().copied().filter(|d| d.is_finite() && *d > 0.0).collect())?;
 
-    let mut log_ratio = Vec::with_capacity(pairs.len());
-    let mut best: Option<(usize, f64, f64)> = None; // (votes, scale, shift in prior units)
-    let steps = params.shift_steps.max(1);
-    for k in 0..steps {
-        let frac = if steps == 1 { 0.0 } else { -params.shift_range + 2.0 * params.shift_range * k as f64 / (steps - 1) as f64 };
-        let t = frac * median_depth;
-        log_ratio.clear();
+    // Coarse-to-fine search over the shift: a coarse grid, then a fine one around its best.
+    let mut votes = ScaleVotes::new(params.log_scale_window);
+    let mut vote = |t: f64| -> Option<(usize, f64, f64)> {
+        votes.clear();
         for (p, &(i, j)) in pairs.iter().enumerate() {
             let (i, j) = (i as usize, j as usize);
             let (di, dj) = (prior_depth[i] + t, prior_depth[j] + t);
-            if map_len[p] < params.min_pair_length || di <= 0.0 || dj <= 0.0 {
+            if map_len[p] < params.min_pair_length || !(di > 0.0 && dj > 0.0) {
                 continue;
             }
             let img_len = (rays[i] * di - rays[j] * dj).norm();
             if img_len > 1e-9 {
-                log_ratio.push((map_len[p] / img_len).ln());
+                votes.add((map_len[p] / img_len).ln());
             }
         }
-        if let Some((votes, centre)) = densest_window(&mut log_ratio, params.log_scale_window) {
-            if best.is_none_or(|(v, _, _)| votes > v) {
-                best = Some((votes, centre.exp(), t));
-            }
+        votes.densest().map(|(count, log_scale)| (count, log_scale.exp(), t))
+    };
+    let steps = params.shift_steps.max(1);
+    let range = params.shift_range * median_depth;
+    let step = if steps > 1 { 2.0 * range / (steps - 1) as f64 } else { 0.0 };
+    let better = |a: Option<(usize, f64, f64)>, b: Option<(usize, f64, f64)>| match (a, b) {
+        (Some(x), Some(y)) => Some(if y.0 > x.0 { y } else { x }),
+        (x, y) => x.or(y),
+    };
+    let mut best = None;
+    for k in 0..steps {
+        best = better(best, vote(-range + step * k as f64));
+    }
+    if let Some((_, _, centre)) = best {
+        for k in 1..=params.fine_steps {
+            let offset = step * k as f64 / (params.fine_steps + 1) as f64;
+            best = better(best, vote(centre - offset));
+            best = better(best, vote(centre + offset));
         }
     }
     let (votes, scale, t) = best?;
@@ -312,23 +326,49 @@ fn refine_scale_shift(
     }
 }
 
-/// The densest window of width `w` in `values` (sorted in place): (count, median inside).
-fn densest_window(values: &mut [f64], w: f64) -> Option<(usize, f64)> {
-    if values.is_empty() {
-        return None;
+/// Votes on log(scale) in a fine histogram; the densest window of the vote width wins.
+struct ScaleVotes {
+    bins: Vec<u32>,
+    /// Bins per vote window.
+    window: usize,
+    bin_width: f64,
+}
+
+impl ScaleVotes {
+    /// log-scales outside ±`LOG_RANGE` (a factor of ~55) do not vote.
+    const LOG_RANGE: f64 = 4.0;
+    const BINS_PER_WINDOW: usize = 4;
+
+    fn new(window: f64) -> Self {
+        let bin_width = window.max(1e-4) / Self::BINS_PER_WINDOW as f64;
+        let n = (2.0 * Self::LOG_RANGE / bin_width).ceil() as usize + 1;
+        Self { bins: vec![0; n], window: Self::BINS_PER_WINDOW, bin_width }
     }
-    values.sort_unstable_by(f64::total_cmp);
-    let (mut best, mut best_start, mut end) = (0usize, 0usize, 0usize);
-    for start in 0..values.len() {
-        while end < values.len() && values[end] <= values[start] + w {
-            end += 1;
-        }
-        if end - start > best {
-            best = end - start;
-            best_start = start;
+
+    fn clear(&mut self) {
+        self.bins.fill(0);
+    }
+
+    fn add(&mut self, log_scale: f64) {
+        let k = (log_scale + Self::LOG_RANGE) / self.bin_width;
+        if k >= 0.0 && (k as usize) < self.bins.len() {
+            self.bins[k as usize] += 1;
         }
     }
-    Some((best, values[best_start + best / 2]))
+
+    /// (votes, centre log-scale) of the densest window.
+    fn densest(&self) -> Option<(usize, f64)> {
+        let mut count: u32 = self.bins[..self.window.min(self.bins.len())].iter().sum();
+        let (mut best, mut best_start) = (count, 0);
+        for start in 1..=self.bins.len().saturating_sub(self.window) {
+            count = count + self.bins[start + self.window - 1] - self.bins[start - 1];
+            if count > best {
+                best = count;
+                best_start = start;
+            }
+        }
+        (best > 0).then(|| (best as usize, (best_start as f64 + self.window as f64 / 2.0) * self.bin_width - Self::LOG_RANGE))
+    }
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -445,8 +485,13 @@ mod tests {
     }
 
     #[test]
-    fn densest_window_finds_the_mode() {
-        let mut v = vec![0.0, 5.0, 5.01, 5.02, 9.0, 5.03];
-        assert_eq!(densest_window(&mut v, 0.05).unwrap().0, 4);
+    fn scale_votes_find_the_mode() {
+        let mut votes = ScaleVotes::new(0.06);
+        for v in [0.0, 0.5, 0.51, 0.52, 0.53, -2.0, 9.0] {
+            votes.add(v);
+        }
+        let (count, centre) = votes.densest().unwrap();
+        assert_eq!(count, 4);
+        assert!((centre - 0.515).abs() < 0.03, "{centre}");
     }
 }

@@ -5,6 +5,7 @@
 //! The core (`geometry`, `consistency`, `reject`, `pnp`, `pipeline`, `eval`) is pure and
 //! free of I/O; `msgs` and `bag` are the edges.
 
+pub mod app;
 pub mod bag;
 pub mod consistency;
 pub mod eval;

@@ -1,1 +1,223 @@
-fn main() {}
+//! `angle-i2p`: replay bags through the localizer, score output bags, make synthetic bags.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use angle_i2p::app::{self, describe};
+use angle_i2p::bag::{read_frames, write_input_bag};
+use angle_i2p::eval::{format_table, median};
+use angle_i2p::params::Params;
+use angle_i2p::pipeline::{Localizer, Method};
+use angle_i2p::synth::{generate, SynthConfig, PRESETS};
+
+#[derive(Parser)]
+#[command(name = "angle-i2p", version, about = "Camera localization against a point map with Angle-I2P outlier rejection")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Localize every frame of a rosbag2 bag and write the results to a new bag.
+    Replay {
+        /// Input bag: a rosbag2 directory or a bare .mcap file.
+        bag: PathBuf,
+        /// Output bag directory (must not exist yet).
+        #[arg(long)]
+        out: PathBuf,
+        /// Outlier rejection before PnP (overrides the params file).
+        #[arg(long, value_enum)]
+        method: Option<Method>,
+        /// ROS 2 params file (default: none, built-in defaults = params/angle_i2p.yaml).
+        #[arg(long)]
+        params_file: Option<PathBuf>,
+        /// Print one line per frame.
+        #[arg(long)]
+        verbose: bool,
+    },
+    /// Score output bags against the ground truth of the input bag: IR, RR, MRE, MTE, ms/frame.
+    Eval {
+        /// Input bag with /ground_truth/pose and /ground_truth/depth.
+        bag: PathBuf,
+        /// Output bag(s) of `replay`; one table row each.
+        #[arg(long = "est", required = true)]
+        est: Vec<PathBuf>,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+        #[arg(long)]
+        params_file: Option<PathBuf>,
+    },
+    /// Write a synthetic bag (room of planes and boxes, camera path, ground truth).
+    Synth {
+        /// Output bag directory (replaced if it exists).
+        #[arg(long)]
+        out: PathBuf,
+        /// Tier: sift, hard or extreme.
+        #[arg(long, default_value = "hard")]
+        preset: String,
+        /// JSON/YAML file with SynthConfig fields overriding the preset.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long)]
+        seed: Option<u64>,
+        #[arg(long)]
+        frames: Option<usize>,
+        #[arg(long)]
+        inlier_ratio: Option<f64>,
+        #[arg(long)]
+        correspondences: Option<usize>,
+    },
+}
+
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn load_params(path: Option<&Path>) -> Result<Params> {
+    Ok(match path {
+        Some(p) => Params::from_ros_params_file(p)?,
+        None => Params::default(),
+    })
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Replay { bag, out, method, params_file, verbose } => {
+            let mut params = load_params(params_file.as_deref())?;
+            if let Some(m) = method {
+                params.method = m;
+            }
+            let topics = params.topics.clone();
+            let mut localizer = Localizer::new(params);
+            let bar = ProgressBar::new(0).with_style(
+                ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} frames {msg}")
+                    .unwrap_or_else(|_| ProgressStyle::default_bar())
+                    .progress_chars("=> "),
+            );
+            bar.set_prefix(format!("replay {}", localizer.params().method.name()));
+            let report = app::replay(&bag, &out, &mut localizer, &topics, |k, n, loc| {
+                bar.set_length(n as u64);
+                bar.set_position(k as u64 + 1);
+                bar.set_message(format!("{:.2} ms", loc.timings.total_ms));
+                if verbose {
+                    let line = format!(
+                        "frame {}: {} kept, {} inliers, {:.2} ms (geometry {:.2}, reject {:.2}, pnp {:.2}){}",
+                        loc.stamp,
+                        loc.kept.len(),
+                        loc.num_inliers,
+                        loc.timings.total_ms,
+                        loc.timings.geometry_ms,
+                        loc.timings.reject_ms,
+                        loc.timings.pnp_ms,
+                        loc.failure.as_ref().map(|f| format!(" — no pose: {f}")).unwrap_or_default()
+                    );
+                    if bar.is_hidden() { eprintln!("{line}") } else { bar.println(line) }
+                }
+            })?;
+            bar.finish_and_clear();
+            for f in &report.incomplete {
+                eprintln!("warning: {}", describe(f));
+            }
+            for issue in &report.issues {
+                eprintln!("warning: {issue}");
+            }
+            let ms: Vec<f64> = report.localizations.iter().map(|l| l.timings.total_ms).collect();
+            let posed = report.localizations.iter().filter(|l| l.pose.is_some()).count();
+            println!(
+                "{}: {} frames, {} with a pose, {} skipped; ms/frame median {:.2}, mean {:.2}, max {:.2} → {}",
+                localizer.params().method.name(),
+                report.localizations.len(),
+                posed,
+                report.incomplete.iter().filter(|f| f.dropped).count(),
+                median(&ms).unwrap_or(0.0),
+                angle_i2p::eval::mean(&ms).unwrap_or(0.0),
+                ms.iter().copied().fold(0.0, f64::max),
+                out.display()
+            );
+            for l in report.localizations.iter().filter(|l| l.failure.is_some()) {
+                if let Some(f) = &l.failure {
+                    eprintln!("frame {}: no pose: {f}", l.stamp);
+                }
+            }
+            Ok(())
+        }
+        Command::Eval { bag, est, json, params_file } => {
+            let params = load_params(params_file.as_deref())?;
+            let input = read_frames(&bag, &params.topics)?;
+            let mut rows = vec![("raw matches (IR only)".to_string(), app::raw_inlier_ratio(&input))];
+            let mut evaluations = Vec::new();
+            for e in &est {
+                let ev = app::evaluate(&input, e, &params.topics).with_context(|| format!("evaluating {}", e.display()))?;
+                rows.push((ev.method.clone(), ev.summary.clone()));
+                evaluations.push(ev);
+            }
+            if json {
+                let obj: serde_json::Map<String, serde_json::Value> = evaluations
+                    .iter()
+                    .map(|ev| Ok((ev.method.clone(), serde_json::to_value(&ev.summary)?)))
+                    .collect::<Result<_>>()?;
+                println!("{}", serde_json::to_string_pretty(&obj)?);
+            } else {
+                println!("{}", bag.display());
+                print!("{}", format_table(&rows));
+            }
+            Ok(())
+        }
+        Command::Synth { out, preset, config, seed, frames, inlier_ratio, correspondences } => {
+            let Some(mut cfg) = SynthConfig::preset(&preset) else {
+                bail!("unknown preset {preset:?}: one of {}", PRESETS.join(", "));
+            };
+            if let Some(path) = config {
+                let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+                // Fields of the file override the preset's.
+                let mut base = serde_yaml::to_value(&cfg)?;
+                let over: serde_yaml::Value = serde_yaml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+                if let (Some(b), Some(o)) = (base.as_mapping_mut(), over.as_mapping()) {
+                    for (k, v) in o {
+                        b.insert(k.clone(), v.clone());
+                    }
+                }
+                cfg = serde_yaml::from_value(base).with_context(|| format!("{}", path.display()))?;
+            }
+            if let Some(s) = seed {
+                cfg.seed = s;
+            }
+            if let Some(f) = frames {
+                cfg.frames = f;
+            }
+            if let Some(r) = inlier_ratio {
+                cfg.inlier_ratio = r;
+            }
+            if let Some(n) = correspondences {
+                cfg.correspondences = n;
+            }
+            let scene = generate(&cfg);
+            if out.exists() {
+                std::fs::remove_dir_all(&out).with_context(|| format!("replacing {}", out.display()))?;
+            }
+            write_input_bag(&out, &Params::default().topics, &scene.map, &scene.frames)?;
+            let irs: Vec<f64> = scene.stats.iter().map(|s| s.inlier_ratio).collect();
+            println!(
+                "synth {preset} (seed {}): {} frames, {} map points, mean inlier ratio {:.3} → {}",
+                cfg.seed,
+                scene.frames.len(),
+                scene.map.points.len(),
+                angle_i2p::eval::mean(&irs).unwrap_or(0.0),
+                out.display()
+            );
+            Ok(())
+        }
+    }
+}

@@ -1,1 +1,227 @@
-//! TODO(#2): pipeline
+//! The localizer: one frame in, one [`Localization`] out. Geometry → rejection → PnP →
+//! covariance, with per-stage timings; every failure is a value with a reason.
+
+use std::time::Instant;
+
+use nalgebra::{Isometry3, Matrix6};
+use serde::{Deserialize, Serialize};
+
+use crate::consistency::ScaleShift;
+use crate::frame::{Correspondence, Frame, Stamp};
+use crate::params::Params;
+use crate::pnp::{solve_pnp_ransac, PnpError};
+use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
+
+/// How outliers are rejected before PnP.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// No rejection: LO-RANSAC on the raw correspondences (the baseline row).
+    Ransac,
+    /// Spectral scoring of the pairwise consistency matrix, then score-ordered LO-RANSAC.
+    #[default]
+    Consistency,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Ransac => "ransac",
+            Method::Consistency => "consistency",
+        }
+    }
+}
+
+/// Wall-clock time of each stage, milliseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct StageTimings {
+    pub geometry_ms: f64,
+    pub reject_ms: f64,
+    pub pnp_ms: f64,
+    pub total_ms: f64,
+}
+
+/// Why a frame got no pose.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum Failure {
+    #[error("the frame has no correspondences")]
+    NoCorrespondences,
+    #[error("too few correspondences: {have} < {need}")]
+    TooFewCorrespondences { have: usize, need: usize },
+    #[error("invalid camera intrinsics")]
+    InvalidIntrinsics,
+    #[error("correspondence {index} is not finite")]
+    NonFinite { index: usize },
+    #[error("rejection failed: {0}")]
+    Rejection(RejectError),
+    #[error("PnP failed: {0}")]
+    Pnp(PnpError),
+}
+
+impl Failure {
+    /// A short stable key for counting failures in diagnostics.
+    pub fn key(&self) -> &'static str {
+        match self {
+            Failure::NoCorrespondences => "no_correspondences",
+            Failure::TooFewCorrespondences { .. } => "too_few_correspondences",
+            Failure::InvalidIntrinsics => "invalid_intrinsics",
+            Failure::NonFinite { .. } => "non_finite",
+            Failure::Rejection(_) => "rejection",
+            Failure::Pnp(_) => "pnp",
+        }
+    }
+}
+
+/// The result for one frame.
+#[derive(Clone, Debug)]
+pub struct Localization {
+    pub stamp: Stamp,
+    pub camera_frame_id: String,
+    pub map_frame_id: String,
+    pub method: Method,
+    /// Camera-to-map pose of the camera's optical frame.
+    pub pose: Option<Isometry3<f64>>,
+    /// 6×6 covariance, (x, y, z, rot x, rot y, rot z).
+    pub covariance: Option<Matrix6<f64>>,
+    /// The correspondences kept, `score` = inlier score. With rejection: the rejector's kept
+    /// set, best first; without: the RANSAC inliers.
+    pub kept: Vec<Correspondence>,
+    /// PnP inliers (among the correspondences PnP saw).
+    pub num_inliers: usize,
+    pub scale_shift: Option<ScaleShift>,
+    pub timings: StageTimings,
+    pub failure: Option<Failure>,
+}
+
+/// Localizes frames; holds the reusable per-frame buffers.
+pub struct Localizer {
+    params: Params,
+    rejector: Option<Box<dyn Rejector>>,
+}
+
+impl Localizer {
+    pub fn new(params: Params) -> Self {
+        let rejector: Option<Box<dyn Rejector>> = match params.method {
+            Method::Ransac => None,
+            Method::Consistency => Some(Box::new(SpectralRejector::new(params.spectral.clone()))),
+        };
+        Self { params, rejector }
+    }
+
+    pub fn params(&self) -> &Params {
+        &self.params
+    }
+
+    pub fn process(&mut self, frame: &Frame) -> Localization {
+        let start = Instant::now();
+        let mut out = Localization {
+            stamp: frame.stamp,
+            camera_frame_id: frame.camera_frame_id.clone(),
+            map_frame_id: frame.map_frame_id.clone(),
+            method: self.params.method,
+            pose: None,
+            covariance: None,
+            kept: Vec::new(),
+            num_inliers: 0,
+            scale_shift: None,
+            timings: StageTimings::default(),
+            failure: None,
+        };
+        if let Err(failure) = self.validate(frame) {
+            out.failure = Some(failure);
+            out.timings.total_ms = ms_since(start);
+            return out;
+        }
+
+        // Geometry: rays, prior depths and the aligned image cloud (only a rejector needs them).
+        let t = Instant::now();
+        let geometry = match self.rejector {
+            Some(_) => FrameGeometry::build(frame, self.params.depth_kind, Some(&self.params.align)),
+            None => FrameGeometry::default(),
+        };
+        out.scale_shift = geometry.scale_shift;
+        out.timings.geometry_ms = ms_since(t);
+
+        // Rejection: scores and the kept subset, best first.
+        let t = Instant::now();
+        let rejection = match self.rejector.as_mut().map(|r| r.reject(&geometry)) {
+            None => None,
+            Some(Ok(r)) => Some(r),
+            Some(Err(e)) => {
+                out.failure = Some(Failure::Rejection(e));
+                out.timings.reject_ms = ms_since(t);
+                out.timings.total_ms = ms_since(start);
+                return out;
+            }
+        };
+        out.timings.reject_ms = ms_since(t);
+
+        // PnP on the kept correspondences, sampled in score order.
+        let t = Instant::now();
+        let subset: Vec<usize> = match &rejection {
+            Some(r) => r.kept.clone(),
+            None => (0..frame.correspondences.len()).collect(),
+        };
+        let pixels: Vec<_> = subset.iter().map(|&i| frame.correspondences[i].pixel).collect();
+        let points: Vec<_> = subset.iter().map(|&i| frame.correspondences[i].point).collect();
+        let scores: Option<Vec<f32>> = rejection.as_ref().map(|r| subset.iter().map(|&i| r.scores[i]).collect());
+        let solved =
+            solve_pnp_ransac(&frame.intrinsics, &pixels, &points, scores.as_deref(), &self.params.pnp, self.params.seed);
+        out.timings.pnp_ms = ms_since(t);
+        match solved {
+            Ok(solution) => {
+                out.pose = Some(solution.pose);
+                out.covariance = Some(solution.covariance);
+                out.num_inliers = solution.num_inliers;
+                out.kept = match &rejection {
+                    Some(r) => subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect(),
+                    None => subset
+                        .iter()
+                        .zip(&solution.inliers)
+                        .filter(|(_, &inlier)| inlier)
+                        .map(|(&i, _)| with_score(frame.correspondences[i], 1.0))
+                        .collect(),
+                };
+            }
+            Err(e) => {
+                if let Some(r) = &rejection {
+                    out.kept = subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect();
+                }
+                out.failure = Some(Failure::Pnp(e));
+            }
+        }
+        out.timings.total_ms = ms_since(start);
+        out
+    }
+
+    fn validate(&self, frame: &Frame) -> Result<(), Failure> {
+        if !frame.intrinsics.is_valid() {
+            return Err(Failure::InvalidIntrinsics);
+        }
+        let n = frame.correspondences.len();
+        if n == 0 {
+            return Err(Failure::NoCorrespondences);
+        }
+        let need = self.params.pnp.min_inliers.max(4);
+        if n < need {
+            return Err(Failure::TooFewCorrespondences { have: n, need });
+        }
+        if let Some(index) = frame
+            .correspondences
+            .iter()
+            .position(|c| !(c.pixel.iter().chain(c.point.iter()).all(|v| v.is_finite()) && c.score.is_finite()))
+        {
+            return Err(Failure::NonFinite { index });
+        }
+        Ok(())
+    }
+}
+
+fn with_score(mut c: Correspondence, score: f32) -> Correspondence {
+    c.score = score;
+    c
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
