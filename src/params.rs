@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::bag::TopicMap;
 use crate::consistency::ScaleShiftParams;
 use crate::geometry::DepthKind;
-use crate::pipeline::Method;
+use crate::pipeline::{FinalRefine, Method};
 use crate::pnp::PnpParams;
 use crate::reject::SpectralParams;
 
@@ -25,6 +25,8 @@ pub struct Params {
     pub spectral: SpectralParams,
     /// Robust PnP.
     pub pnp: PnpParams,
+    /// Last refinement on every correspondence agreeing with the pose.
+    pub final_refine: FinalRefine,
     /// Seed of every random choice (results are reproducible).
     pub seed: u64,
     /// Topic names.

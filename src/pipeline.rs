@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::params::Params;
-use crate::pnp::{solve_pnp_ransac, PnpError};
+use crate::pnp::{pose_covariance, refine_pose, solve_pnp_ransac, PnpError, RefineOptions, RobustLoss};
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
 
 /// How outliers are rejected before PnP.
@@ -29,6 +29,26 @@ impl Method {
             Method::Ransac => "ransac",
             Method::Consistency => "consistency",
         }
+    }
+}
+
+/// The last refinement over every correspondence that agrees with the pose.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default)]
+pub struct FinalRefine {
+    pub enabled: bool,
+    /// A correspondence joins when its reprojection error is below
+    /// `threshold_px + fx·threshold_m / depth`: a pixel term plus a 3D term.
+    pub threshold_px: f64,
+    pub threshold_m: f64,
+    pub loss: RobustLoss,
+    pub loss_scale_px: f64,
+    pub max_iterations: usize,
+}
+
+impl Default for FinalRefine {
+    fn default() -> Self {
+        Self { enabled: true, threshold_px: 4.0, threshold_m: 0.03, loss: RobustLoss::Trivial, loss_scale_px: 4.0, max_iterations: 20 }
     }
 }
 
@@ -169,7 +189,10 @@ impl Localizer {
             solve_pnp_ransac(&frame.intrinsics, &pixels, &points, scores.as_deref(), &self.params.pnp, self.params.seed);
         out.timings.pnp_ms = ms_since(t);
         match solved {
-            Ok(solution) => {
+            Ok(mut solution) => {
+                if rejection.is_some() && self.params.final_refine.enabled {
+                    self.refine_on_all(frame, &mut solution);
+                }
                 out.pose = Some(solution.pose);
                 out.covariance = Some(solution.covariance);
                 out.num_inliers = solution.num_inliers;
@@ -192,6 +215,38 @@ impl Localizer {
         }
         out.timings.total_ms = ms_since(start);
         out
+    }
+
+    /// Rejection keeps a subset; once the pose is known, every correspondence that agrees with
+    /// it (reprojection below `final_refine.threshold_px`) sharpens it in a last robust LM.
+    fn refine_on_all(&self, frame: &Frame, solution: &mut crate::pnp::PnpSolution) {
+        let p = &self.params.final_refine;
+        let k = &frame.intrinsics;
+        let to_cam = solution.pose.inverse();
+        let agreeing: Vec<&Correspondence> = frame
+            .correspondences
+            .iter()
+            .filter(|c| {
+                let x = to_cam.transform_point(&c.point);
+                // A map point off by `threshold_m` moves fx·threshold_m/z pixels: near points may
+                // be far off in pixels and still good.
+                let tolerance = p.threshold_px + k.fx * p.threshold_m / x.z;
+                k.project(&x).is_some_and(|px| (px - c.pixel).norm() < tolerance)
+            })
+            .collect();
+        if agreeing.len() < self.params.pnp.min_inliers.max(4) {
+            return;
+        }
+        let pixels: Vec<_> = agreeing.iter().map(|c| c.pixel).collect();
+        let points: Vec<_> = agreeing.iter().map(|c| c.point).collect();
+        let options = RefineOptions { max_iterations: p.max_iterations, loss: p.loss, loss_scale_px: p.loss_scale_px };
+        if let Ok(refined) = refine_pose(k, &pixels, &points, &solution.pose, &options) {
+            if let Ok(cov) = pose_covariance(k, &pixels, &points, &refined.pose) {
+                solution.covariance = cov;
+            }
+            solution.pose = refined.pose;
+            solution.rmse_px = refined.rmse_px;
+        }
     }
 
     fn validate(&self, frame: &Frame) -> Result<(), Failure> {

@@ -17,6 +17,9 @@ use nalgebra::{Matrix3, Point2, Point3, SymmetricEigen, Vector2, Vector3};
 const M: usize = 3;
 /// Assumed probability that a correspondence agrees with a wrong model (SPRT δ).
 const SPRT_DELTA: f64 = 0.02;
+/// SPRT assumes at least this inlier ratio for a good model, so that it also prunes before a
+/// good model is found (a good model with fewer inliers is rarely drawn within the budget).
+const SPRT_MIN_EPS: f64 = 0.05;
 /// SPRT decision threshold A: a good model is wrongly rejected with probability ≲ 1/A.
 const SPRT_A: f64 = 300.0;
 /// Rounds of local optimisation per new best model, and LM iterations per round.
@@ -122,12 +125,19 @@ struct Sprt {
 
 impl Sprt {
     fn new(eps: f64) -> Option<Self> {
+        let eps = eps.max(SPRT_MIN_EPS);
         (eps > 1.5 * SPRT_DELTA && eps < 1.0).then(|| Self {
             log_in: (SPRT_DELTA / eps).ln(),
             log_out: ((1.0 - SPRT_DELTA) / (1.0 - eps)).ln(),
             log_a: SPRT_A.ln(),
         })
     }
+}
+
+struct Acc {
+    score: f64,
+    inliers: usize,
+    lambda: f64,
 }
 
 struct Data {
@@ -138,16 +148,35 @@ struct Data {
 }
 
 impl Data {
-    /// MSAC score with early exit once it reaches `best` or SPRT rejects.
+    /// MSAC score with early exit once it reaches `best` or SPRT rejects. Evaluation starts at
+    /// position `start` and wraps around, so no fixed prefix decides every SPRT.
     #[inline(always)]
-    fn score_bounded(&self, pose: &MapToCamera, best: f64, sprt: Option<Sprt>) -> Score {
+    fn score_bounded(&self, pose: &MapToCamera, best: f64, sprt: Option<Sprt>, start: usize) -> Score {
+        let mut acc = Acc { score: 0.0, inliers: 0, lambda: 0.0 };
+        let (pw, px) = (&self.pw, &self.px);
+        if !self.score_range(pose, &pw[start..], &px[start..], best, &sprt, &mut acc)
+            || !self.score_range(pose, &pw[..start], &px[..start], best, &sprt, &mut acc)
+        {
+            return Score::Rejected;
+        }
+        Score::Better(acc.score, acc.inliers)
+    }
+
+    /// Accumulates over one contiguous range; `false` once rejected.
+    #[inline(always)]
+    fn score_range(
+        &self,
+        pose: &MapToCamera,
+        pw: &[Vector3<f64>],
+        px: &[Vector2<f64>],
+        best: f64,
+        sprt: &Option<Sprt>,
+        acc: &mut Acc,
+    ) -> bool {
         let (cam, th2) = (&self.cam, self.th2);
-        let mut score = 0.0;
-        let mut inliers = 0usize;
-        let mut lambda = 0.0;
         let r = &pose.rotation;
         let t = &pose.translation;
-        for (p, q) in self.pw.iter().zip(&self.px) {
+        for (p, q) in pw.iter().zip(px) {
             let x = r * p + t;
             let e2 = if x.z > MIN_DEPTH {
                 let iz = 1.0 / x.z;
@@ -159,22 +188,22 @@ impl Data {
             };
             let inlier = e2 < th2;
             if inlier {
-                score += e2;
-                inliers += 1;
+                acc.score += e2;
+                acc.inliers += 1;
             } else {
-                score += th2;
+                acc.score += th2;
             }
-            if score >= best {
-                return Score::Rejected;
+            if acc.score >= best {
+                return false;
             }
-            if let Some(s) = &sprt {
-                lambda += if inlier { s.log_in } else { s.log_out };
-                if lambda > s.log_a {
-                    return Score::Rejected;
+            if let Some(s) = sprt {
+                acc.lambda += if inlier { s.log_in } else { s.log_out };
+                if acc.lambda > s.log_a {
+                    return false;
                 }
             }
         }
-        Score::Better(score, inliers)
+        true
     }
 
     /// MSAC score and inlier count, no early exit.
@@ -306,7 +335,7 @@ pub fn solve_pnp_ransac(
     let mut best: Option<MapToCamera> = None;
     let mut best_score = f64::INFINITY;
     let mut best_inliers = 0usize;
-    let mut sprt: Option<Sprt> = None;
+    let mut sprt: Option<Sprt> = Sprt::new(0.0);
     let mut needed = f64::INFINITY;
     let mut idx_buf: Vec<usize> = Vec::with_capacity(n);
     let mut flags: Vec<bool> = vec![false; n];
@@ -324,8 +353,9 @@ pub fn solve_pnp_ransac(
         };
         let sols = p3p_unit(&[bearings[s[0]], bearings[s[1]], bearings[s[2]]], &[data.pw[s[0]], data.pw[s[1]], data.pw[s[2]]]);
         let mut improved = false;
+        let start = if sols.is_empty() { 0 } else { rng.below(n) };
         for pose in sols.iter() {
-            let Score::Better(score, inliers) = data.score_bounded(pose, best_score, sprt) else { continue };
+            let Score::Better(score, inliers) = data.score_bounded(pose, best_score, sprt, start) else { continue };
             let (mut pose, mut score, mut inliers) = (*pose, score, inliers);
             if params.local_optimization && inliers >= 4 {
                 for _ in 0..LO_ROUNDS {

@@ -362,3 +362,51 @@ fn params_deserialize_with_defaults() {
     assert_eq!(p.min_inliers, 6);
     assert_eq!(p.confidence, 0.9999);
 }
+
+/// Success rate and cost over inlier ratios (run with `--ignored --nocapture`).
+#[test]
+#[ignore]
+fn stress_success_rates() {
+    for &n in &[300usize, 1000] {
+        for &ratio in &[0.05, 0.08, 0.1, 0.15, 0.3, 0.55] {
+            let trials = 40;
+            let mut ok = 0;
+            let mut iters = 0;
+            let mut worst_r: f64 = 0.0;
+            let t0 = std::time::Instant::now();
+            for seed in 0..trials {
+                let (pose, px, pw, _) = scenario(1000 + seed, n, 1.0 - ratio);
+                if let Ok(s) = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), seed) {
+                    let (r, t) = pose_error(&s.pose, &pose);
+                    iters += s.iterations;
+                    if r < 1e-2 && t < 0.2 {
+                        ok += 1;
+                    } else {
+                        worst_r = worst_r.max(r);
+                    }
+                }
+            }
+            let ms = t0.elapsed().as_secs_f64() * 1e3 / trials as f64;
+            println!("n={n} inliers={ratio}: {ok}/{trials} ok, mean iters {}, {ms:.2} ms/solve, worst wrong rot {worst_r:.3}", iters / trials as usize);
+        }
+    }
+}
+
+#[test]
+#[ignore]
+fn p3p_timing() {
+    let mut rng = WyRand::new(1);
+    let pose = random_pose(&mut rng);
+    let (px, pw) = visible(&mut rng, &pose, 300, 1.0);
+    let intr = k();
+    let b: Vec<Vector3<f64>> = px.iter().map(|p| intr.bearing(p)).collect();
+    let t0 = std::time::Instant::now();
+    let mut total = 0;
+    for i in 0..100_000 {
+        let (a, c, d) = (rng.below(300), rng.below(300), rng.below(300));
+        if a == c || a == d || c == d { continue; }
+        let _ = i;
+        total += p3p(&[b[a], b[c], b[d]], &[pw[a], pw[c], pw[d]]).len();
+    }
+    println!("p3p: {:.3} µs/call, {:.2} sols/call", t0.elapsed().as_secs_f64() * 1e6 / 1e5, total as f64 / 1e5);
+}

@@ -57,6 +57,9 @@ pub struct SynthConfig {
     /// Share of correspondences that are true inliers (3D distance of the ground-truth
     /// lifted pixel to the map point below `inlier_threshold_m`).
     pub inlier_ratio: f64,
+    /// Per-frame spread of the inlier ratio: each frame's ratio is
+    /// `inlier_ratio · exp(spread · N(0, 1))` (0 = every frame exactly `inlier_ratio`).
+    pub inlier_ratio_spread: f64,
     /// Share of correspondences moved patch by patch by one rigid motion each.
     pub patch_outlier_fraction: f64,
     /// Radius of an outlier patch in pixels.
@@ -113,6 +116,7 @@ impl Default for SynthConfig {
             prior_resolution: 0.5,
             correspondences: 800,
             inlier_ratio: 0.5,
+            inlier_ratio_spread: 0.0,
             patch_outlier_fraction: 0.0,
             patch_radius_px: 20.0,
             patch_rotation_sigma: 0.3,
@@ -191,6 +195,7 @@ impl SynthConfig {
             prior_resolution: fin(self.prior_resolution, 0.5).clamp(0.01, 1.0),
             correspondences: self.correspondences.min(1_000_000),
             inlier_ratio: unit(self.inlier_ratio, d.inlier_ratio),
+            inlier_ratio_spread: nonneg(self.inlier_ratio_spread, 0.0).min(3.0),
             patch_outlier_fraction: unit(self.patch_outlier_fraction, 0.0),
             patch_radius_px: pos(self.patch_radius_px, d.patch_radius_px),
             patch_rotation_sigma: nonneg(self.patch_rotation_sigma, d.patch_rotation_sigma),
@@ -425,6 +430,14 @@ impl FrameContext<'_> {
         let stamp = FIRST_STAMP + (k as i64 + 1) * 100_000_000;
         let render = self.render(&intrinsics, &pose);
 
+        let frame_config;
+        let c = if c.inlier_ratio_spread > 0.0 {
+            let ratio = c.inlier_ratio * (c.inlier_ratio_spread * rng.sample::<f64, _>(StandardNormal)).exp();
+            frame_config = SynthConfig { inlier_ratio: ratio.clamp(0.0, 1.0), ..c.clone() };
+            &frame_config
+        } else {
+            c
+        };
         let generated = corr::correspondences(
             &corr::CorrInputs { scene: self.scene, config: c, intrinsics: &intrinsics, pose: &pose, render: &render, map: self.map, index: self.index },
             &mut rng,

@@ -268,6 +268,16 @@ fn patch_outliers_are_locally_rigid_but_wrong() {
 }
 
 #[test]
+fn inlier_ratio_spread_varies_frames() {
+    let cfg = SynthConfig { inlier_ratio_spread: 0.3, ..small("hard", 6, 8) };
+    let scene = generate(&cfg);
+    let ratios: Vec<f64> = scene.stats.iter().map(|s| s.inlier_ratio).collect();
+    let (lo, hi) = ratios.iter().fold((1.0_f64, 0.0_f64), |(lo, hi), r| (lo.min(*r), hi.max(*r)));
+    assert!(hi - lo > 0.01, "ratios {ratios:?}");
+    assert!(ratios.iter().all(|r| *r > 0.03 && *r < 0.45), "ratios {ratios:?}");
+}
+
+#[test]
 fn snapping_to_the_map_keeps_inliers() {
     let cfg = SynthConfig { snap_to_map: true, ..small("sift", 2, 4) };
     let scene = generate(&cfg);
@@ -285,9 +295,11 @@ fn timing() {
         let t = std::time::Instant::now();
         let scene = generate(&cfg);
         let dt = t.elapsed();
-        for k in [0, 7] {
+        for k in [0, 7, 13] {
             if let Some(img) = scene.frames.get(k).and_then(|f| f.image.as_ref()) {
-                let _ = std::fs::write(std::env::temp_dir().join(format!("synth_{name}_{k}.jpg")), &img.data);
+                if let Ok(decoded) = image::load_from_memory(&img.data) {
+                    let _ = decoded.save(std::env::temp_dir().join(format!("synth_{name}_{k}.png")));
+                }
             }
         }
         let ir: Vec<String> = scene.stats.iter().map(|s| format!("{:.3}", s.inlier_ratio)).collect();
