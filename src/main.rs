@@ -53,6 +53,11 @@ enum Command {
         #[arg(long)]
         params_file: Option<PathBuf>,
     },
+    /// Print the effective parameters as a ROS 2 params file.
+    Params {
+        #[arg(long)]
+        params_file: Option<PathBuf>,
+    },
     /// Write a synthetic bag (room of planes and boxes, camera path, ground truth).
     Synth {
         /// Output bag directory (replaced if it exists).
@@ -151,6 +156,15 @@ fn run(cli: Cli) -> Result<()> {
                     eprintln!("frame {}: no pose: {f}", l.stamp);
                 }
             }
+            Ok(())
+        }
+        Command::Params { params_file } => {
+            let params = load_params(params_file.as_deref())?;
+            let mut node = serde_yaml::Mapping::new();
+            node.insert("ros__parameters".into(), serde_yaml::to_value(&params)?);
+            let mut doc = serde_yaml::Mapping::new();
+            doc.insert("angle_i2p".into(), serde_yaml::Value::Mapping(node));
+            print!("{}", serde_yaml::to_string(&doc)?);
             Ok(())
         }
         Command::Eval { bag, est, json, params_file } => {

@@ -7,9 +7,8 @@ use angle_i2p::bag::{BagError, BagReader, BagWriter};
 use angle_i2p::msgs::{self, convert, from_cdr, to_cdr, MsgError, RosMessage};
 use nalgebra::{Isometry3, Matrix6, Point2, Point3, Vector3};
 
-fn manifest() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
+mod common;
+use common::{manifest, python, shared_data, skip_or_fail};
 
 fn fixture(name: &str) -> PathBuf {
     manifest().join("tests/fixtures").join(name)
@@ -109,12 +108,6 @@ fn python_written_fixture_decodes_to_frames() {
     assert_eq!(f.ground_truth.as_ref().unwrap().depth.as_ref().unwrap().height, 4);
 }
 
-fn shared_data() -> Option<PathBuf> {
-    let dir =
-        std::env::var_os("ANGLE_I2P_DATA").map(PathBuf::from).unwrap_or_else(|| manifest().join("../shared/data"));
-    dir.is_dir().then_some(dir)
-}
-
 #[test]
 fn shared_bags_round_trip_byte_for_byte() {
     let Some(data) = shared_data() else {
@@ -136,19 +129,6 @@ fn shared_bags_round_trip_byte_for_byte() {
         assert!(!read.frames.is_empty() && read.incomplete.is_empty(), "{}: {:?}", bag.display(), read.incomplete);
         eprintln!("{}: {} frames round-trip", bag.display(), read.frames.len());
     }
-}
-
-fn python() -> Option<PathBuf> {
-    let p =
-        std::env::var_os("ANGLE_I2P_PYTHON").map(PathBuf::from).unwrap_or_else(|| manifest().join(".venv/bin/python"));
-    p.exists().then_some(p)
-}
-
-fn skip_or_fail(reason: &str) {
-    if std::env::var_os("CI").is_some() {
-        panic!("{reason} (CI is set, so this is a failure)");
-    }
-    eprintln!("SKIP: {reason}");
 }
 
 /// Compares JSON values, numbers to a relative 1e-6 (f32 values printed as f64).

@@ -23,7 +23,10 @@ pub(crate) fn absolute_orientation(from: &[Vector3<f64>], to: &[Vector3<f64>]) -
     for (f, t) in from.iter().zip(to) {
         h += (t - ct) * (f - cf).transpose();
     }
-    let svd = h.try_svd(true, true, 1e-14, 100)?;
+    if !h.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let svd = h.try_svd(true, true, f64::EPSILON, 200)?;
     let (u, vt) = (svd.u?, svd.v_t?);
     let d = (u * vt).determinant().signum();
     let rot = u * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * vt;
@@ -45,7 +48,10 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
         cov += d * d.transpose();
     }
     cov /= n as f64;
-    let eig = SymmetricEigen::new(cov);
+    if !cov.iter().all(|v| v.is_finite()) {
+        return Err(PnpError::Degenerate("map point spread overflows"));
+    }
+    let eig = SymmetricEigen::try_new(cov, f64::EPSILON, 1000).ok_or(PnpError::Degenerate("eigen decomposition failed"))?;
     let lmax = eig.eigenvalues.amax();
     if !(lmax.is_finite() && lmax > 0.0) || eig.eigenvalues.min() <= 1e-10 * lmax {
         return Err(PnpError::Degenerate("map points are planar or collinear"));
@@ -78,7 +84,10 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
         }
         mtm += r1 * r1.transpose() + r2 * r2.transpose();
     }
-    let eig12 = SymmetricEigen::new(mtm);
+    if !mtm.iter().all(|v| v.is_finite()) {
+        return Err(PnpError::Degenerate("EPnP system is not finite"));
+    }
+    let eig12 = SymmetricEigen::try_new(mtm, f64::EPSILON, 1000).ok_or(PnpError::Degenerate("eigen decomposition failed"))?;
     let mut order: [usize; 12] = std::array::from_fn(|i| i);
     order.sort_by(|&a, &b| eig12.eigenvalues[a].total_cmp(&eig12.eigenvalues[b]));
     let v: [V12; 4] = std::array::from_fn(|k| eig12.eigenvectors.column(order[k]).into_owned());
@@ -109,7 +118,7 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
             }
         }
         let r = nalgebra::DVector::from_row_slice(&rho);
-        let x = l.svd(true, true).solve(&r, 1e-12).ok()?;
+        let x = l.try_svd(true, true, f64::EPSILON, 200)?.solve(&r, 1e-12).ok()?;
         Some(x.iter().copied().collect())
     };
     let mut inits: Vec<Vector4<f64>> = Vec::with_capacity(3);

@@ -147,7 +147,7 @@ pub(crate) fn lm_refine(
     let mut it = 0;
     while it < max_iterations {
         it += 1;
-        if !(lin.cost > 0.0) || !lin.g.iter().all(|v| v.is_finite()) {
+        if !(lin.cost > 0.0) || !lin.g.iter().chain(lin.h.iter()).all(|v| v.is_finite()) {
             break;
         }
         let mut accepted = false;
@@ -217,7 +217,10 @@ pub(crate) fn covariance(cam: &Cam, px: &[Vector2<f64>], pw: &[Vector3<f64>], id
         return None;
     }
     let sigma2 = sq / (2 * n - 6) as f64;
-    let eig = SymmetricEigen::new(h);
+    if !(h.iter().all(|v| v.is_finite()) && sq.is_finite()) {
+        return None;
+    }
+    let eig = SymmetricEigen::try_new(h, f64::EPSILON, 1000)?;
     let lmax = eig.eigenvalues.amax();
     if !(lmax.is_finite() && lmax > 0.0) {
         return None;

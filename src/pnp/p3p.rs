@@ -207,6 +207,9 @@ pub(crate) fn p3p_unit(y: &[Vector3<f64>; 3], x: &[Vector3<f64>; 3]) -> P3pSolut
 
     let msum = m12 + m13 + m23;
     let asum = a12 + a13 + a23;
+    let Some(fw) = frame(&d12, &d13) else { return out };
+    let fwt = fw.transpose();
+    let cw = (x[0] + x[1] + x[2]) / 3.0;
     for &(al, be) in &planes[..np] {
         let Some(dk) = (u * al + v * be).try_normalize(1e-300) else { continue };
         // On this plane D1 and D2 are proportional; use the better conditioned one.
@@ -230,11 +233,8 @@ pub(crate) fn p3p_unit(y: &[Vector3<f64>; 3], x: &[Vector3<f64>; 3]) -> P3pSolut
             }
             let Some(lam) = polish(lam, [b12, b13, b23], [a12, a13, a23]) else { continue };
             let pc = [y[0] * lam.x, y[1] * lam.y, y[2] * lam.z];
-            let (Some(fc), Some(fw)) = (frame(&(pc[0] - pc[1]), &(pc[0] - pc[2])), frame(&d12, &d13)) else {
-                continue;
-            };
-            let rot = fc * fw.transpose();
-            let cw = (x[0] + x[1] + x[2]) / 3.0;
+            let Some(fc) = frame(&(pc[0] - pc[1]), &(pc[0] - pc[2])) else { continue };
+            let rot = fc * fwt;
             let cc = (pc[0] + pc[1] + pc[2]) / 3.0;
             let pose = MapToCamera { rotation: rot, translation: cc - rot * cw };
             if pose.is_finite() {
@@ -259,7 +259,7 @@ fn polish(mut l: Vector3<f64>, b: [f64; 3], a: [f64; 3]) -> Option<Vector3<f64>>
     let mut r = res(&l);
     let mut err = r.amax();
     for _ in 0..5 {
-        if err < 1e-15 * a[0].max(a[1]).max(a[2]) {
+        if err < 1e-13 * a[0].max(a[1]).max(a[2]) {
             break;
         }
         let j = Matrix3::new(

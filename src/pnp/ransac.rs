@@ -257,7 +257,11 @@ fn check_spread(pw: &[Vector3<f64>]) -> Result<(), PnpError> {
         let d = p - c;
         cov += d * d.transpose();
     }
-    let mut ev: Vec<f64> = SymmetricEigen::new(cov).eigenvalues.iter().copied().collect();
+    if !cov.iter().all(|v| v.is_finite()) {
+        return Err(PnpError::Degenerate("map point spread overflows"));
+    }
+    let eig = SymmetricEigen::try_new(cov, f64::EPSILON, 1000).ok_or(PnpError::Degenerate("eigen decomposition failed"))?;
+    let mut ev: Vec<f64> = eig.eigenvalues.iter().copied().collect();
     ev.sort_by(|a, b| b.total_cmp(a));
     if !(ev[0].is_finite() && ev[0] > 0.0) {
         return Err(PnpError::Degenerate("map points coincide"));

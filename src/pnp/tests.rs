@@ -410,3 +410,43 @@ fn p3p_timing() {
     }
     println!("p3p: {:.3} µs/call, {:.2} sols/call", t0.elapsed().as_secs_f64() * 1e6 / 1e5, total as f64 / 1e5);
 }
+
+#[test]
+fn extreme_values_do_not_panic() {
+    let intr = k();
+    let (_, mut px, mut pw, _) = scenario(8, 100, 0.3);
+    for i in 0..10 {
+        pw[i] = Point3::new(1e200, -1e200, 1e200);
+        px[i + 10] = Point2::new(1e300, -1e300);
+    }
+    let _ = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams::default(), 0);
+    let _ = solve_pnp_nonminimal(&intr, &px, &pw, &RefineOptions::default());
+    let _ = epnp(&intr, &px, &pw);
+    let huge: Vec<Point3<f64>> = (0..20).map(|i| Point3::new(1e200 * i as f64, 1e199 * (i * i) as f64, 1e200)).collect();
+    let hp: Vec<Point2<f64>> = (0..20).map(|i| Point2::new(i as f64, (i * 7 % 13) as f64)).collect();
+    assert!(solve_pnp_ransac(&intr, &hp, &huge, None, &PnpParams::default(), 0).is_err());
+    let _ = solve_pnp_nonminimal(&intr, &hp, &huge, &RefineOptions::default());
+    let bad_pose = Isometry3::from_parts(Translation3::new(f64::NAN, 0.0, 0.0), UnitQuaternion::identity());
+    assert!(refine_pose(&intr, &px, &pw, &bad_pose, &RefineOptions::default()).is_err());
+    let _ = pose_covariance(&intr, &px, &pw, &bad_pose);
+}
+
+#[test]
+fn ransac_handles_planar_maps() {
+    // A wall 8 m in front of the camera: EPnP is degenerate there, RANSAC (P3P + LM) is not.
+    let mut rng = WyRand::new(21);
+    let pose = random_pose(&mut rng);
+    let intr = k();
+    let mut px = Vec::new();
+    let mut pw = Vec::new();
+    for _ in 0..300 {
+        let p = Point2::new(uniform(&mut rng, 0.0, 640.0), uniform(&mut rng, 0.0, 480.0));
+        pw.push(pose * intr.back_project(&p, 8.0));
+        px.push(Point2::new(p.x + normal(&mut rng), p.y + normal(&mut rng)));
+    }
+    corrupt(&mut rng, &mut px, &pw, 0.6);
+    let sol = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams::default(), 0).unwrap();
+    let (r, t) = pose_error(&sol.pose, &pose);
+    assert!(r < 1e-2 && t < 0.2, "{r} {t}");
+    assert!(matches!(epnp(&intr, &px, &pw), Err(PnpError::Degenerate(_))));
+}

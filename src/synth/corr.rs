@@ -96,7 +96,11 @@ pub(crate) fn correspondences(inp: &CorrInputs, rng: &mut StdRng) -> Generated {
         let mut best: Option<Candidate> = None;
         for _ in 0..50 {
             let truth_px = Point2::new(rng.random::<f64>() * (w - 1.0), rng.random::<f64>() * (h - 1.0));
-            let d_cam = Vector3::new((truth_px.x - inp.intrinsics.cx) / inp.intrinsics.fx, (truth_px.y - inp.intrinsics.cy) / inp.intrinsics.fy, 1.0);
+            let d_cam = Vector3::new(
+                (truth_px.x - inp.intrinsics.cx) / inp.intrinsics.fx,
+                (truth_px.y - inp.intrinsics.cy) / inp.intrinsics.fy,
+                1.0,
+            );
             let dir = rot * d_cam;
             let Some(hit) = inp.scene.cast(&origin, &dir) else { continue };
             let truth = origin + dir * hit.toi;
@@ -137,7 +141,8 @@ pub(crate) fn correspondences(inp: &CorrInputs, rng: &mut StdRng) -> Generated {
     while moved < target && m > 0 && guard < 100 * m + 100 {
         guard += 1;
         let centre = cands[pick(rng, m)].pixel;
-        let sel: Vec<usize> = (0..m).filter(|&j| patch_of[j].is_none() && (cands[j].pixel - centre).norm() < c.patch_radius_px).collect();
+        let sel: Vec<usize> =
+            (0..m).filter(|&j| patch_of[j].is_none() && (cands[j].pixel - centre).norm() < c.patch_radius_px).collect();
         if sel.is_empty() {
             continue;
         }
@@ -168,7 +173,8 @@ pub(crate) fn correspondences(inp: &CorrInputs, rng: &mut StdRng) -> Generated {
         let lifted = lift(pixel);
         let mut p = Point3::origin();
         for _ in 0..30 {
-            let use_visible = !visible.is_empty() && (inp.map.points.is_empty() || rng.random::<f64>() < c.visible_outlier_fraction);
+            let use_visible =
+                !visible.is_empty() && (inp.map.points.is_empty() || rng.random::<f64>() < c.visible_outlier_fraction);
             let base = if use_visible {
                 inp.render.points[visible[pick(rng, visible.len())]]
             } else if !inp.map.points.is_empty() {

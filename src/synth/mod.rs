@@ -264,13 +264,24 @@ impl SynthScene {
 
 /// 3D distance between a correspondence's map point and its pixel lifted with the
 /// ground-truth depth (nearest pixel) and pose; `None` where the depth is unknown.
-pub fn lifted_distance(intrinsics: &Intrinsics, pose: &Isometry3<f64>, depth: &DepthImage, pixel: &Point2<f64>, point: &Point3<f64>) -> Option<f64> {
+pub fn lifted_distance(
+    intrinsics: &Intrinsics,
+    pose: &Isometry3<f64>,
+    depth: &DepthImage,
+    pixel: &Point2<f64>,
+    point: &Point3<f64>,
+) -> Option<f64> {
     let lifted = lift_pixel(intrinsics, pose, depth, pixel)?;
     Some((lifted - point).norm())
 }
 
 /// A pixel lifted to the map frame with the ground-truth depth at the nearest pixel.
-pub fn lift_pixel(intrinsics: &Intrinsics, pose: &Isometry3<f64>, depth: &DepthImage, pixel: &Point2<f64>) -> Option<Point3<f64>> {
+pub fn lift_pixel(
+    intrinsics: &Intrinsics,
+    pose: &Isometry3<f64>,
+    depth: &DepthImage,
+    pixel: &Point2<f64>,
+) -> Option<Point3<f64>> {
     if !(pixel.x.is_finite() && pixel.y.is_finite()) {
         return None;
     }
@@ -299,7 +310,7 @@ pub fn inlier_mask(frame: &Frame, threshold_m: f64) -> Vec<bool> {
 /// Generates a scene, deterministically for `config.seed`.
 pub fn generate(config: &SynthConfig) -> SynthScene {
     let config = config.sanitized();
-    let mut rng = StdRng::seed_from_u64(scene::mix64(config.seed ^ 0x5EED_0F_5CE1E));
+    let mut rng = StdRng::seed_from_u64(scene::mix64(config.seed ^ 0x05EE_D0F5_CE1E));
     let [l, w, h] = config.room_size;
     let scene = Scene::room(Vector3::new(l, w, h), &mut rng);
     let map = map_cloud(&scene, &config, &mut rng);
@@ -348,7 +359,11 @@ fn map_cloud(scene: &Scene, config: &SynthConfig, rng: &mut StdRng) -> MapCloud 
         let noise = gaussian3(rng, config.cloud_noise_m);
         let q = p + noise;
         if config.map_voxel_m > 0.0 {
-            let key = ((q.x / config.map_voxel_m).floor() as i64, (q.y / config.map_voxel_m).floor() as i64, (q.z / config.map_voxel_m).floor() as i64);
+            let key = (
+                (q.x / config.map_voxel_m).floor() as i64,
+                (q.y / config.map_voxel_m).floor() as i64,
+                (q.z / config.map_voxel_m).floor() as i64,
+            );
             if !seen.insert(key) {
                 continue;
             }
@@ -362,7 +377,8 @@ fn gaussian3(rng: &mut StdRng, sigma: f64) -> Vector3<f64> {
     if sigma <= 0.0 {
         return Vector3::zeros();
     }
-    Vector3::new(rng.sample::<f64, _>(StandardNormal), rng.sample::<f64, _>(StandardNormal), rng.sample::<f64, _>(StandardNormal)) * sigma
+    Vector3::new(rng.sample::<f64, _>(StandardNormal), rng.sample::<f64, _>(StandardNormal), rng.sample::<f64, _>(StandardNormal))
+        * sigma
 }
 
 /// A smooth loop about the room centre, looking outward with a little pitch and roll.
@@ -424,7 +440,8 @@ pub(crate) struct Render {
 impl FrameContext<'_> {
     fn frame(&self, k: usize) -> (Frame, FrameStats) {
         let c = self.config;
-        let mut rng = StdRng::seed_from_u64(scene::mix64(c.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ scene::mix64(k as u64 + 1)));
+        let mut rng =
+            StdRng::seed_from_u64(scene::mix64(c.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ scene::mix64(k as u64 + 1)));
         let intrinsics = c.intrinsics();
         let pose = self.path.pose(k);
         let stamp = FIRST_STAMP + (k as i64 + 1) * 100_000_000;
@@ -439,7 +456,15 @@ impl FrameContext<'_> {
             c
         };
         let generated = corr::correspondences(
-            &corr::CorrInputs { scene: self.scene, config: c, intrinsics: &intrinsics, pose: &pose, render: &render, map: self.map, index: self.index },
+            &corr::CorrInputs {
+                scene: self.scene,
+                config: c,
+                intrinsics: &intrinsics,
+                pose: &pose,
+                render: &render,
+                map: self.map,
+                index: self.index,
+            },
             &mut rng,
         );
 
@@ -501,7 +526,8 @@ impl FrameContext<'_> {
             for u in 0..w {
                 let i = v * w + u;
                 // Camera-frame direction with z = 1, so the time of impact is the z-depth.
-                let d_cam = Vector3::new((u as f64 - intrinsics.cx) / intrinsics.fx, (v as f64 - intrinsics.cy) / intrinsics.fy, 1.0);
+                let d_cam =
+                    Vector3::new((u as f64 - intrinsics.cx) / intrinsics.fx, (v as f64 - intrinsics.cy) / intrinsics.fy, 1.0);
                 let dir = rot * d_cam;
                 let Some(hit) = self.scene.cast(&origin, &dir) else { continue };
                 let p = origin + dir * hit.toi;

@@ -91,12 +91,54 @@ impl Scene {
             [(c[0] * k).clamp(0.02, 1.0), (c[1] * k).clamp(0.02, 1.0), (c[2] * k).clamp(0.02, 1.0)]
         };
         let mut solids = vec![
-            solid("floor", [l / 2.0, w / 2.0, -t / 2.0], [l / 2.0 + t, w / 2.0 + t, t / 2.0], 0.0, jitter([0.55, 0.45, 0.35]), Texture::Tiles),
-            solid("ceiling", [l / 2.0, w / 2.0, h + t / 2.0], [l / 2.0 + t, w / 2.0 + t, t / 2.0], 0.0, jitter([0.85, 0.85, 0.82]), Texture::Fabric),
-            solid("wall_west", [-t / 2.0, w / 2.0, h / 2.0], [t / 2.0, w / 2.0 + t, h / 2.0 + t], 0.0, jitter([0.75, 0.70, 0.55]), Texture::Wallpaper),
-            solid("wall_east", [l + t / 2.0, w / 2.0, h / 2.0], [t / 2.0, w / 2.0 + t, h / 2.0 + t], 0.0, jitter([0.55, 0.65, 0.75]), Texture::Wallpaper),
-            solid("wall_south", [l / 2.0, -t / 2.0, h / 2.0], [l / 2.0 + t, t / 2.0, h / 2.0 + t], 0.0, jitter([0.70, 0.75, 0.60]), Texture::Wallpaper),
-            solid("wall_north", [l / 2.0, w + t / 2.0, h / 2.0], [l / 2.0 + t, t / 2.0, h / 2.0 + t], 0.0, jitter([0.78, 0.62, 0.58]), Texture::Wallpaper),
+            solid(
+                "floor",
+                [l / 2.0, w / 2.0, -t / 2.0],
+                [l / 2.0 + t, w / 2.0 + t, t / 2.0],
+                0.0,
+                jitter([0.55, 0.45, 0.35]),
+                Texture::Tiles,
+            ),
+            solid(
+                "ceiling",
+                [l / 2.0, w / 2.0, h + t / 2.0],
+                [l / 2.0 + t, w / 2.0 + t, t / 2.0],
+                0.0,
+                jitter([0.85, 0.85, 0.82]),
+                Texture::Fabric,
+            ),
+            solid(
+                "wall_west",
+                [-t / 2.0, w / 2.0, h / 2.0],
+                [t / 2.0, w / 2.0 + t, h / 2.0 + t],
+                0.0,
+                jitter([0.75, 0.70, 0.55]),
+                Texture::Wallpaper,
+            ),
+            solid(
+                "wall_east",
+                [l + t / 2.0, w / 2.0, h / 2.0],
+                [t / 2.0, w / 2.0 + t, h / 2.0 + t],
+                0.0,
+                jitter([0.55, 0.65, 0.75]),
+                Texture::Wallpaper,
+            ),
+            solid(
+                "wall_south",
+                [l / 2.0, -t / 2.0, h / 2.0],
+                [l / 2.0 + t, t / 2.0, h / 2.0 + t],
+                0.0,
+                jitter([0.70, 0.75, 0.60]),
+                Texture::Wallpaper,
+            ),
+            solid(
+                "wall_north",
+                [l / 2.0, w + t / 2.0, h / 2.0],
+                [l / 2.0 + t, t / 2.0, h / 2.0 + t],
+                0.0,
+                jitter([0.78, 0.62, 0.58]),
+                Texture::Wallpaper,
+            ),
         ];
         // Furniture, laid out for a 5 × 4 m room, kept ≥ ~0.8 m from the camera path.
         let wood = jitter([0.55, 0.35, 0.2]);
@@ -106,7 +148,14 @@ impl Scene {
             solids.push(solid("table_leg", [table.0 + dx, table.1 + dy, 0.36], [0.03, 0.03, 0.36], 0.0, wood, Texture::Wood));
         }
         solids.extend([
-            solid("box_on_table", [table.0 + 0.2, table.1 + 0.05, 0.86], [0.15, 0.1, 0.1], 0.35, jitter([0.8, 0.2, 0.15]), Texture::Fabric),
+            solid(
+                "box_on_table",
+                [table.0 + 0.2, table.1 + 0.05, 0.86],
+                [0.15, 0.1, 0.1],
+                0.35,
+                jitter([0.8, 0.2, 0.15]),
+                Texture::Fabric,
+            ),
             solid("cabinet", [l - 0.26, 0.55 * sy, 0.9], [0.25, 0.45, 0.9], 0.0, jitter([0.35, 0.3, 0.28]), Texture::Wood),
             solid("sofa_seat", [2.5 * sx, 0.42, 0.22], [0.9, 0.4, 0.22], 0.0, jitter([0.25, 0.35, 0.6]), Texture::Fabric),
             solid("sofa_back", [2.5 * sx, 0.1, 0.5], [0.9, 0.1, 0.5], 0.0, jitter([0.22, 0.32, 0.55]), Texture::Fabric),
@@ -141,10 +190,7 @@ impl Scene {
     /// Distance from a point to the nearest surface (0 inside a solid).
     pub fn distance_to_surfaces(&self, p: &Point3<f64>) -> f64 {
         let q = v3(p.x, p.y, p.z);
-        self.solids
-            .iter()
-            .map(|s| s.cuboid.distance_to_point(&s.pose, q, true) as f64)
-            .fold(f64::INFINITY, f64::min)
+        self.solids.iter().map(|s| s.cuboid.distance_to_point(&s.pose, q, true) as f64).fold(f64::INFINITY, f64::min)
     }
 
     /// Whether a point lies inside the room's interior and outside all solids.
@@ -260,7 +306,8 @@ pub(crate) fn mix64(mut z: u64) -> u64 {
 }
 
 fn lattice(ix: i64, iy: i64, seed: u64) -> f64 {
-    let h = mix64(seed ^ mix64((ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)));
+    let h =
+        mix64(seed ^ mix64((ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)));
     (h >> 11) as f64 / (1u64 << 53) as f64
 }
 
@@ -301,7 +348,11 @@ fn texture(kind: Texture, u: f64, v: f64, seed: u64) -> [f64; 3] {
             let grout = fu < 0.03 || fv < 0.03;
             let tile = lattice((u / size).floor() as i64, (v / size).floor() as i64, seed);
             let speck = fbm(u * 12.0, v * 12.0, 3, seed ^ 1);
-            if grout { g(0.35) } else { g(0.75 + 0.25 * tile + 0.3 * (speck - 0.5)) }
+            if grout {
+                g(0.35)
+            } else {
+                g(0.75 + 0.25 * tile + 0.3 * (speck - 0.5))
+            }
         }
         Texture::Wallpaper => {
             let stripe = if (u / 0.12).rem_euclid(1.0) < 0.5 { 1.0 } else { 0.82 };

@@ -43,10 +43,32 @@ fn degenerate_configs_do_not_panic() {
     let none = generate(&SynthConfig { frames: 0, ..SynthConfig::default() });
     assert!(none.frames.is_empty());
     assert!(!none.map.points.is_empty());
-    let empty = generate(&SynthConfig { frames: 1, correspondences: 0, width: 16, height: 12, fx: 13.0, fy: 13.0, cx: 8.0, cy: 6.0, ..SynthConfig::default() });
+    let empty = generate(&SynthConfig {
+        frames: 1,
+        correspondences: 0,
+        width: 16,
+        height: 12,
+        fx: 13.0,
+        fy: 13.0,
+        cx: 8.0,
+        cy: 6.0,
+        ..SynthConfig::default()
+    });
     assert_eq!(empty.frames.len(), 1);
     assert!(empty.frames[0].correspondences.is_empty());
-    let all_patch = generate(&SynthConfig { frames: 1, width: 32, height: 24, fx: 26.0, fy: 26.0, cx: 16.0, cy: 12.0, correspondences: 50, patch_outlier_fraction: 1.0, inlier_ratio: 0.5, ..SynthConfig::default() });
+    let all_patch = generate(&SynthConfig {
+        frames: 1,
+        width: 32,
+        height: 24,
+        fx: 26.0,
+        fy: 26.0,
+        cx: 16.0,
+        cy: 12.0,
+        correspondences: 50,
+        patch_outlier_fraction: 1.0,
+        inlier_ratio: 0.5,
+        ..SynthConfig::default()
+    });
     assert_eq!(all_patch.stats[0].patch_moved, 50);
     assert_eq!(all_patch.stats[0].inliers, 0);
 }
@@ -126,9 +148,17 @@ fn inliers_lift_onto_their_points_and_ratio_matches() {
                     _ => assert!(d >= 0.05 && !*inlier, "{preset}: outlier {l:?} only {d} m off"),
                 }
             }
-            assert!((s.inlier_ratio - cfg.inlier_ratio).abs() < 0.02, "{preset}: ratio {} vs {}", s.inlier_ratio, cfg.inlier_ratio);
+            assert!(
+                (s.inlier_ratio - cfg.inlier_ratio).abs() < 0.02,
+                "{preset}: ratio {} vs {}",
+                s.inlier_ratio,
+                cfg.inlier_ratio
+            );
             let moved = s.patch_moved as f64 / s.correspondences as f64;
-            assert!(moved >= cfg.patch_outlier_fraction - 1e-9 && moved <= cfg.patch_outlier_fraction + 0.1, "{preset}: moved {moved}");
+            assert!(
+                moved >= cfg.patch_outlier_fraction - 1e-9 && moved <= cfg.patch_outlier_fraction + 0.1,
+                "{preset}: moved {moved}"
+            );
         }
     }
 }
@@ -189,7 +219,9 @@ fn prior_is_affine_in_depth_within_the_warp() {
         let mut errors = Vec::new();
         for v in (0..240).step_by(2) {
             for u in (0..320).step_by(2) {
-                let (Some(d), Some(p)) = (depth.at(u, v), prior.sample(&Point2::new(u as f64, v as f64), 320, 240)) else { continue };
+                let (Some(d), Some(p)) = (depth.at(u, v), prior.sample(&Point2::new(u as f64, v as f64), 320, 240)) else {
+                    continue;
+                };
                 errors.push(((s.prior_scale * p + s.prior_shift) - d as f64).abs() / d as f64);
             }
         }
@@ -237,11 +269,13 @@ fn patch_outliers_are_locally_rigid_but_wrong() {
         assert_eq!(by_patch.len(), s.patches);
         for members in by_patch.values() {
             // Members that were true before moving: their true places map rigidly onto the moved points.
-            let base: Vec<usize> = members.iter().copied().filter(|&j| matches!(s.labels[j], CorrLabel::Patch { base_inlier: true, .. })).collect();
+            let base: Vec<usize> =
+                members.iter().copied().filter(|&j| matches!(s.labels[j], CorrLabel::Patch { base_inlier: true, .. })).collect();
             if base.len() < 4 {
                 continue;
             }
-            let truth: Vec<Point3<f64>> = base.iter().filter_map(|&j| lift_pixel(&f.intrinsics, &pose, depth, &f.correspondences[j].pixel)).collect();
+            let truth: Vec<Point3<f64>> =
+                base.iter().filter_map(|&j| lift_pixel(&f.intrinsics, &pose, depth, &f.correspondences[j].pixel)).collect();
             let moved: Vec<Point3<f64>> = base.iter().map(|&j| f.correspondences[j].point).collect();
             let rms = rigid_fit_rms(&truth, &moved);
             assert!(rms < 0.03, "patch not rigid: rms {rms}");
