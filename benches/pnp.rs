@@ -87,6 +87,12 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
+    // Fixed budget for comparison with PoseLib's LO-RANSAC (10k iterations on 400 points).
+    let fixed = PnpParams { min_iterations: 10_000, max_iterations: 10_000, ..params.clone() };
+    let p = problem(400, 400, 0.15);
+    group.bench_function("uniform_10k_iterations/400", |b| {
+        b.iter(|| black_box(solve_pnp_ransac(&k, &p.pixels, &p.points, None, &fixed, 1).ok()))
+    });
     group.finish();
 
     let mut group = c.benchmark_group("pnp_nonminimal");

@@ -104,17 +104,36 @@ pub fn distance_consistency(
 ) {
     let n = image.len().min(map.len());
     out.reset(n);
-    let img: Vec<Vector3<f32>> = image[..n].iter().map(|p| p.coords.cast()).collect();
-    let mp: Vec<Vector3<f32>> = map[..n].iter().map(|p| p.coords.cast()).collect();
+    let img = Soa::new(&image[..n]);
+    let mp = Soa::new(&map[..n]);
     let (sa, sr) = (sigma_abs as f32, sigma_rel as f32);
-    for i in 0..n {
-        for j in (i + 1)..n {
-            let d_img = (img[i] - img[j]).norm();
-            let d_map = (mp[i] - mp[j]).norm();
+    // Whole rows (each pair twice) keep the inner loop branch-free and vectorisable.
+    for (i, row) in out.values.chunks_exact_mut(n).enumerate() {
+        let (ix, iy, iz) = (img.x[i], img.y[i], img.z[i]);
+        let (mx, my, mz) = (mp.x[i], mp.y[i], mp.z[i]);
+        for j in 0..n {
+            let d_img = ((img.x[j] - ix).powi(2) + (img.y[j] - iy).powi(2) + (img.z[j] - iz).powi(2)).sqrt();
+            let d_map = ((mp.x[j] - mx).powi(2) + (mp.y[j] - my).powi(2) + (mp.z[j] - mz).powi(2)).sqrt();
             let delta = (d_img - d_map) / (sa + sr * d_map);
-            let theta = (1.0 - delta * delta).max(0.0);
-            out.values[i * n + j] = theta;
-            out.values[j * n + i] = theta;
+            row[j] = (1.0 - delta * delta).max(0.0);
+        }
+        row[i] = 0.0;
+    }
+}
+
+/// Coordinates as separate `f32` arrays (structure of arrays), for vectorised pair loops.
+struct Soa {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+}
+
+impl Soa {
+    fn new(points: &[Point3<f64>]) -> Self {
+        Self {
+            x: points.iter().map(|p| p.x as f32).collect(),
+            y: points.iter().map(|p| p.y as f32).collect(),
+            z: points.iter().map(|p| p.z as f32).collect(),
         }
     }
 }
@@ -164,6 +183,8 @@ pub struct ScaleShiftParams {
     /// Neighbours per correspondence in the image, whose pairs vote (local pairs keep their
     /// length even inside a wrongly placed but rigid patch).
     pub local_neighbours: usize,
+    /// At most this many local pairs in all (fewer neighbours each for large frames).
+    pub max_local_pairs: usize,
     /// Random global pairs that vote as well.
     pub global_pairs: usize,
     /// Shifts tried, as a fraction of the median prior depth: −range..=range.
@@ -184,6 +205,7 @@ impl Default for ScaleShiftParams {
     fn default() -> Self {
         Self {
             local_neighbours: 10,
+            max_local_pairs: 4000,
             global_pairs: 4000,
             shift_range: 0.6,
             shift_steps: 9,
@@ -227,19 +249,36 @@ pub fn estimate_scale_shift(
     let map_len: Vec<f64> = pairs.iter().map(|&(i, j)| (map[i as usize] - map[j as usize]).norm()).collect();
     let median_depth = median(prior_depth[..n].iter().copied().filter(|d| d.is_finite() && *d > 0.0).collect())?;
 
+    // Per pair, the image length under shift t is ‖a + t·b‖ with a = r_i d_i − r_j d_j and
+    // b = r_i − r_j: precompute |a|², a·b, |b|² once, so each shift costs a few flops a pair.
+    let coefficients: Vec<PairTerms> = pairs
+        .iter()
+        .zip(&map_len)
+        .filter(|(_, &len)| len >= params.min_pair_length)
+        .map(|(&(i, j), &len)| {
+            let (i, j) = (i as usize, j as usize);
+            let a = rays[i] * prior_depth[i] - rays[j] * prior_depth[j];
+            let b = rays[i] - rays[j];
+            PairTerms {
+                aa: a.norm_squared() as f32,
+                ab: a.dot(&b) as f32,
+                bb: b.norm_squared() as f32,
+                log_map_len2: (len * len).ln() as f32,
+                min_depth: prior_depth[i].min(prior_depth[j]) as f32,
+            }
+        })
+        .collect();
+
     // Coarse-to-fine search over the shift: a coarse grid, then a fine one around its best.
     let mut votes = ScaleVotes::new(params.log_scale_window);
     let mut vote = |t: f64| -> Option<(usize, f64, f64)> {
         votes.clear();
-        for (p, &(i, j)) in pairs.iter().enumerate() {
-            let (i, j) = (i as usize, j as usize);
-            let (di, dj) = (prior_depth[i] + t, prior_depth[j] + t);
-            if map_len[p] < params.min_pair_length || !(di > 0.0 && dj > 0.0) {
-                continue;
-            }
-            let img_len = (rays[i] * di - rays[j] * dj).norm();
-            if img_len > 1e-9 {
-                votes.add((map_len[p] / img_len).ln());
+        let tf = t as f32;
+        for c in &coefficients {
+            let img_len2 = c.aa + tf * (2.0 * c.ab + tf * c.bb);
+            if c.min_depth + tf > 0.0 && img_len2 > 1e-18 {
+                // log(scale) = ½·(log ‖q_i − q_j‖² − log ‖o_i − o_j‖²)
+                votes.add(0.5 * (c.log_map_len2 - img_len2.ln()) as f64);
             }
         }
         votes.densest().map(|(count, log_scale)| (count, log_scale.exp(), t))
@@ -324,6 +363,15 @@ fn refine_scale_shift(
             break;
         }
     }
+}
+
+/// Shift-independent terms of one voting pair.
+struct PairTerms {
+    aa: f32,
+    ab: f32,
+    bb: f32,
+    log_map_len2: f32,
+    min_depth: f32,
 }
 
 /// Votes on log(scale) in a fine histogram; the densest window of the vote width wins.

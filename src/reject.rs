@@ -90,9 +90,10 @@ impl FrameGeometry {
         let map: Vec<_> = known.iter().map(|&i| self.map_points[i]).collect();
         let flat: Vec<Point3<f32>> = known.iter().map(|&i| Point3::new(self.pixels[i].x as f32, self.pixels[i].y as f32, 0.0)).collect();
         let index = PointIndex::new(&flat);
-        let mut pairs = Vec::with_capacity(known.len() * params.local_neighbours);
+        let neighbours = params.local_neighbours.min(params.max_local_pairs / known.len().max(1)).max(1);
+        let mut pairs = Vec::with_capacity(known.len() * neighbours);
         for (a, p) in flat.iter().enumerate() {
-            for b in index.nearest(p, params.local_neighbours + 1) {
+            for b in index.nearest(p, neighbours + 1) {
                 if b != a {
                     pairs.push((a as u32, b as u32));
                 }
@@ -164,8 +165,10 @@ pub struct SpectralParams {
     /// … but at least this many and at most that many.
     pub min_keep: usize,
     pub max_keep: usize,
-    /// Power-iteration steps for the leading eigenvector.
+    /// Power-iteration steps for the leading eigenvector, at most …
     pub iterations: usize,
+    /// … stopping once the unit vector moves less than this (L1, relative to √n).
+    pub tolerance: f32,
     /// Angle metric: passes that re-centre eq. (5) on the previous pass's scores (0 = paper).
     pub recentre_passes: usize,
 }
@@ -181,6 +184,7 @@ impl Default for SpectralParams {
             min_keep: 30,
             max_keep: 400,
             iterations: 30,
+            tolerance: 1e-3,
             recentre_passes: 1,
         }
     }
@@ -210,30 +214,37 @@ impl SpectralRejector {
         &self.theta
     }
 
+    /// Power iteration from the degree vector (already close to the leading eigenvector when
+    /// one cluster dominates); stops once the vector moves less than `tolerance` (L1).
     fn leading_eigenvector(&mut self) {
         let n = self.theta.n;
         self.vector.clear();
-        self.vector.resize(n, 1.0 / (n.max(1) as f32).sqrt());
+        self.vector.extend((0..n).map(|i| self.theta.row(i).iter().sum::<f32>()));
+        normalize(&mut self.vector);
         self.next.resize(n, 0.0);
         for _ in 0..self.params.iterations {
             for i in 0..n {
                 self.next[i] = dot(self.theta.row(i), &self.vector);
             }
-            let norm = self.next.iter().map(|x| x * x).sum::<f32>().sqrt();
-            if !(norm > 0.0) {
+            if normalize(&mut self.next) == 0.0 {
                 break;
             }
-            let mut change = 0.0f32;
-            for (v, x) in self.vector.iter_mut().zip(&self.next) {
-                let x = x / norm;
-                change += (x - *v).abs();
-                *v = x;
-            }
-            if change < 1e-5 * n as f32 {
+            let change: f32 = self.vector.iter().zip(&self.next).map(|(a, b)| (a - b).abs()).sum();
+            std::mem::swap(&mut self.vector, &mut self.next);
+            if change < self.params.tolerance * (n as f32).sqrt() {
                 break;
             }
         }
     }
+}
+
+/// Scales `v` to unit L2 norm (left as is when zero); returns the old norm.
+fn normalize(v: &mut [f32]) -> f32 {
+    let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if norm > 0.0 {
+        v.iter_mut().for_each(|x| *x /= norm);
+    }
+    norm
 }
 
 fn dot(a: &[f32], b: &[f32]) -> f32 {

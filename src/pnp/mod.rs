@@ -21,6 +21,9 @@
 //!   `p' = p + δp`, `R' = exp([δθ]×)·R`, in metres² and radians².
 //! * Non-finite correspondences are ignored (never inliers); a non-finite score ranks last.
 
+// `!(x > y)` is deliberate throughout: it is true for NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 mod epnp;
 mod lm;
 mod p3p;

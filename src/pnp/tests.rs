@@ -188,7 +188,9 @@ fn lm_converges_from_perturbed_pose() {
     }
 }
 
-fn scenario(seed: u64, n: usize, outlier_ratio: f64) -> (Isometry3<f64>, Vec<Point2<f64>>, Vec<Point3<f64>>, Vec<bool>) {
+type Scenario = (Isometry3<f64>, Vec<Point2<f64>>, Vec<Point3<f64>>, Vec<bool>);
+
+fn scenario(seed: u64, n: usize, outlier_ratio: f64) -> Scenario {
     let mut rng = WyRand::new(seed);
     let pose = random_pose(&mut rng);
     let (mut px, pw) = visible(&mut rng, &pose, n, 1.0);
@@ -392,6 +394,7 @@ fn stress_success_rates() {
     }
 }
 
+/// P3P throughput (run with `--release --ignored --nocapture`).
 #[test]
 #[ignore]
 fn p3p_timing() {
@@ -402,10 +405,11 @@ fn p3p_timing() {
     let b: Vec<Vector3<f64>> = px.iter().map(|p| intr.bearing(p)).collect();
     let t0 = std::time::Instant::now();
     let mut total = 0;
-    for i in 0..100_000 {
+    for _ in 0..100_000 {
         let (a, c, d) = (rng.below(300), rng.below(300), rng.below(300));
-        if a == c || a == d || c == d { continue; }
-        let _ = i;
+        if a == c || a == d || c == d {
+            continue;
+        }
         total += p3p(&[b[a], b[c], b[d]], &[pw[a], pw[c], pw[d]]).len();
     }
     println!("p3p: {:.3} µs/call, {:.2} sols/call", t0.elapsed().as_secs_f64() * 1e6 / 1e5, total as f64 / 1e5);

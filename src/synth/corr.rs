@@ -16,7 +16,8 @@ use crate::geometry::{Intrinsics, PointIndex};
 pub enum CorrLabel {
     /// The true surface point of the pixel (plus noise).
     Inlier,
-    /// A wrong point: another visible surface point or a random map point.
+    /// A wrong point: a near miss (the true point displaced by 8–30 cm), another visible
+    /// surface point or a random map point.
     Outlier,
     /// Moved with patch `patch` by that patch's rigid motion; `base_inlier` says whether
     /// the point was a true one before moving.
@@ -91,11 +92,21 @@ pub(crate) fn correspondences(inp: &CorrInputs, rng: &mut StdRng) -> Generated {
 
     // 1. Pixels with their true surface points; each must be able to be a ground-truth
     //    inlier (keeps pixels off depth edges and grazing spots where noise breaks the test).
+    //    Keypoints crowd feature-rich spots: a share of them comes from a few blobs.
+    let blobs: Vec<Point2<f64>> =
+        (0..c.keypoint_blobs).map(|_| Point2::new(rng.random::<f64>() * (w - 1.0), rng.random::<f64>() * (h - 1.0))).collect();
+    let blob_sigma = 0.08 * w.min(h);
     let mut cands: Vec<Candidate> = Vec::with_capacity(c.correspondences);
     for _ in 0..c.correspondences {
         let mut best: Option<Candidate> = None;
         for _ in 0..50 {
-            let truth_px = Point2::new(rng.random::<f64>() * (w - 1.0), rng.random::<f64>() * (h - 1.0));
+            let truth_px = if !blobs.is_empty() && rng.random::<f64>() < c.keypoint_clustering {
+                let b = blobs[pick(rng, blobs.len())];
+                let d = gaussian3(rng, blob_sigma);
+                Point2::new((b.x + d.x).clamp(0.0, w - 1.0), (b.y + d.y).clamp(0.0, h - 1.0))
+            } else {
+                Point2::new(rng.random::<f64>() * (w - 1.0), rng.random::<f64>() * (h - 1.0))
+            };
             let d_cam = Vector3::new(
                 (truth_px.x - inp.intrinsics.cx) / inp.intrinsics.fx,
                 (truth_px.y - inp.intrinsics.cy) / inp.intrinsics.fy,
@@ -169,20 +180,23 @@ pub(crate) fn correspondences(inp: &CorrInputs, rng: &mut StdRng) -> Generated {
     // 4. Points and scores.
     let scores = Scores::new();
     let visible: Vec<usize> = (0..inp.render.points.len()).filter(|&i| inp.render.points[i].x.is_finite()).collect();
-    let outlier_point = |pixel: &Point2<f64>, rng: &mut StdRng| -> Point3<f64> {
-        let lifted = lift(pixel);
+    let outlier_point = |cand: &Candidate, rng: &mut StdRng| -> Point3<f64> {
+        let lifted = lift(&cand.pixel);
         let mut p = Point3::origin();
         for _ in 0..30 {
-            let use_visible =
-                !visible.is_empty() && (inp.map.points.is_empty() || rng.random::<f64>() < c.visible_outlier_fraction);
-            let base = if use_visible {
-                inp.render.points[visible[pick(rng, visible.len())]]
+            let base = if rng.random::<f64>() < c.near_outlier_fraction {
+                // A near miss: the true point displaced by 8–30 cm in a random direction.
+                let dir = gaussian3(rng, 1.0);
+                let dir = if dir.norm() > 1e-9 { dir.normalize() } else { Vector3::x() };
+                cand.inlier_point + dir * (0.08 + 0.22 * rng.random::<f64>())
+            } else if !visible.is_empty() && (inp.map.points.is_empty() || rng.random::<f64>() < c.visible_outlier_fraction) {
+                inp.render.points[visible[pick(rng, visible.len())]] + gaussian3(rng, c.map_noise_m)
             } else if !inp.map.points.is_empty() {
-                inp.map.points[pick(rng, inp.map.points.len())].cast::<f64>()
+                inp.map.points[pick(rng, inp.map.points.len())].cast::<f64>() + gaussian3(rng, c.map_noise_m)
             } else {
-                p
+                cand.inlier_point + Vector3::new(1.0, 0.0, 0.0)
             };
-            p = base + gaussian3(rng, c.map_noise_m);
+            p = base;
             if lifted.is_none_or(|l| (l - p).norm() >= 1.5 * thr) {
                 break;
             }
@@ -196,7 +210,7 @@ pub(crate) fn correspondences(inp: &CorrInputs, rng: &mut StdRng) -> Generated {
             None => is_inlier[j],
             Some(_) => cands[j].inlier_ok && rng.random::<f64>() < base_ratio,
         };
-        let point = if base_inlier { cands[j].inlier_point } else { outlier_point(&cands[j].pixel, rng) };
+        let point = if base_inlier { cands[j].inlier_point } else { outlier_point(&cands[j], rng) };
         let score = scores.sample(base_inlier, rng);
         let label = match patch_of[j] {
             None if base_inlier => CorrLabel::Inlier,

@@ -60,6 +60,10 @@ pub struct SynthConfig {
     /// Per-frame spread of the inlier ratio: each frame's ratio is
     /// `inlier_ratio · exp(spread · N(0, 1))` (0 = every frame exactly `inlier_ratio`).
     pub inlier_ratio_spread: f64,
+    /// Share of keypoints drawn around `keypoint_blobs` random image spots (Gaussian,
+    /// σ = 8 % of the smaller image side) rather than uniformly, as features crowd textured spots.
+    pub keypoint_clustering: f64,
+    pub keypoint_blobs: usize,
     /// Share of correspondences moved patch by patch by one rigid motion each.
     pub patch_outlier_fraction: f64,
     /// Radius of an outlier patch in pixels.
@@ -80,9 +84,12 @@ pub struct SynthConfig {
     /// Inliers take the nearest map-cloud point to the true surface point (like a matcher
     /// snapping to the map) instead of the true point, before `map_noise_m`.
     pub snap_to_map: bool,
-    /// Share of uniform outliers whose point is visible in the frame (another pixel's
+    /// Share of the other outliers whose point is visible in the frame (another pixel's
     /// surface point); the rest take a random map point anywhere.
     pub visible_outlier_fraction: f64,
+    /// Share of (non-patch) outliers that are near misses: the true point displaced by
+    /// 8–30 cm, as repeated texture or a wrong keyframe depth gives them.
+    pub near_outlier_fraction: f64,
     /// Ground-truth inlier threshold (m), as the evaluation measures it.
     pub inlier_threshold_m: f64,
     /// Log-uniform range of the prior's scale `s` (depth ≈ s · prior + t).
@@ -117,17 +124,20 @@ impl Default for SynthConfig {
             correspondences: 800,
             inlier_ratio: 0.5,
             inlier_ratio_spread: 0.0,
+            keypoint_clustering: 0.5,
+            keypoint_blobs: 6,
             patch_outlier_fraction: 0.0,
             patch_radius_px: 20.0,
             patch_rotation_sigma: 0.3,
             patch_translation_sigma: 0.6,
-            pixel_noise_px: 0.7,
-            map_noise_m: 0.01,
+            pixel_noise_px: 1.0,
+            map_noise_m: 0.015,
             cloud_noise_m: 0.003,
             map_density: 700.0,
             map_voxel_m: 0.025,
             snap_to_map: false,
             visible_outlier_fraction: 0.8,
+            near_outlier_fraction: 0.15,
             inlier_threshold_m: 0.05,
             prior_scale_range: [0.4, 2.5],
             prior_shift_fraction: 0.2,
@@ -196,6 +206,8 @@ impl SynthConfig {
             correspondences: self.correspondences.min(1_000_000),
             inlier_ratio: unit(self.inlier_ratio, d.inlier_ratio),
             inlier_ratio_spread: nonneg(self.inlier_ratio_spread, 0.0).min(3.0),
+            keypoint_clustering: unit(self.keypoint_clustering, d.keypoint_clustering),
+            keypoint_blobs: self.keypoint_blobs.min(1000),
             patch_outlier_fraction: unit(self.patch_outlier_fraction, 0.0),
             patch_radius_px: pos(self.patch_radius_px, d.patch_radius_px),
             patch_rotation_sigma: nonneg(self.patch_rotation_sigma, d.patch_rotation_sigma),
@@ -207,6 +219,7 @@ impl SynthConfig {
             map_voxel_m: nonneg(self.map_voxel_m, d.map_voxel_m),
             snap_to_map: self.snap_to_map,
             visible_outlier_fraction: unit(self.visible_outlier_fraction, d.visible_outlier_fraction),
+            near_outlier_fraction: unit(self.near_outlier_fraction, d.near_outlier_fraction),
             inlier_threshold_m: pos(self.inlier_threshold_m, d.inlier_threshold_m),
             prior_scale_range: scale_range,
             prior_shift_fraction: nonneg(self.prior_shift_fraction, d.prior_shift_fraction).min(0.9),

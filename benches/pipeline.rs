@@ -1,0 +1,57 @@
+//! Per-frame cost of each stage at N = 400, 1000, 2000 correspondences (synthetic "hard" tier:
+//! ~15 % inliers, half moved patch-wise): the consistency matrices (angle, distance), the
+//! scale-and-shift alignment, the spectral scorer, and the whole frame with consistency
+//! rejection vs plain LO-RANSAC measured in the same run.
+//!
+//! `cargo bench --bench pipeline`
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use angle_i2p::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix, ScaleShiftParams};
+use angle_i2p::geometry::DepthKind;
+use angle_i2p::params::Params;
+use angle_i2p::pipeline::{Localizer, Method};
+use angle_i2p::reject::{FrameGeometry, Rejector, SpectralRejector};
+use angle_i2p::synth::{generate, SynthConfig};
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+
+fn frames(n: usize) -> Vec<angle_i2p::frame::Frame> {
+    let config = SynthConfig { frames: 3, correspondences: n, seed: 42, ..SynthConfig::preset("hard").expect("preset") };
+    generate(&config).frames
+}
+
+fn bench(c: &mut Criterion) {
+    let mut group = c.benchmark_group("frame");
+    group.sample_size(20).measurement_time(Duration::from_secs(3)).warm_up_time(Duration::from_millis(500));
+    let align = ScaleShiftParams::default();
+    for n in [400usize, 1000, 2000] {
+        let frames = frames(n);
+        let frame = &frames[1];
+        let geometry = FrameGeometry::build(frame, DepthKind::Depth, Some(&align));
+        let mut theta = ConsistencyMatrix::default();
+        group.bench_with_input(BenchmarkId::new("angle_consistency", n), &geometry, |b, g| {
+            b.iter(|| angle_consistency(black_box(&g.image_points), &g.map_points, None, 0.2, &mut theta))
+        });
+        group.bench_with_input(BenchmarkId::new("distance_consistency", n), &geometry, |b, g| {
+            b.iter(|| distance_consistency(black_box(&g.image_points), &g.map_points, 0.05, 0.1, &mut theta))
+        });
+        group.bench_with_input(BenchmarkId::new("align_scale_shift", n), frame, |b, f| {
+            b.iter(|| FrameGeometry::build(black_box(f), DepthKind::Depth, Some(&align)))
+        });
+        let mut scorer = SpectralRejector::default();
+        group.bench_with_input(BenchmarkId::new("spectral_scorer", n), &geometry, |b, g| {
+            b.iter(|| scorer.reject(black_box(g)).expect("scores"))
+        });
+        for method in [Method::Ransac, Method::Consistency] {
+            let mut localizer = Localizer::new(Params { method, ..Params::default() });
+            group.bench_with_input(BenchmarkId::new(format!("localize_{}", method.name()), n), frame, |b, f| {
+                b.iter(|| localizer.process(black_box(f)))
+            });
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
