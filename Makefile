@@ -20,8 +20,10 @@ $(VENV)/.stamp: scripts/requirements-eval.txt
 
 # Main job on shipped data: replay a synthetic bag with the consistency rejector, then score it.
 demo: build
-	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo --method consistency
-	./target/release/angle-i2p eval $(DEMO_BAG) --est out/demo
+	rm -rf out/demo-ransac out/demo-consistency
+	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo-ransac --method ransac
+	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo-consistency --method consistency
+	./target/release/angle-i2p eval $(DEMO_BAG) --est out/demo-ransac --est out/demo-consistency
 
 # All tests (unit, integration, Python-reader interop, evaluator agreement when ../shared is present).
 test: py-venv
