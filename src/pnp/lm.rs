@@ -304,20 +304,31 @@ pub fn refine_pose(
     if !start.is_finite() {
         return Err(PnpError::InvalidParams("non-finite initial pose"));
     }
-    let cam = Cam::new(intrinsics);
+    Ok(refine_all(&Cam::new(intrinsics), &px, &pw, start, options))
+}
+
+/// LM from `start` over all the given correspondences, with the plain RMS reprojection error of
+/// the result: the shared tail of [`refine_pose`] and the non-minimal solver.
+pub(crate) fn refine_all(
+    cam: &Cam,
+    px: &[Vector2<f64>],
+    pw: &[Vector3<f64>],
+    start: MapToCamera,
+    options: &RefineOptions,
+) -> RefineResult {
     let idx: Vec<usize> = (0..px.len()).collect();
     let loss = Loss::new(options.loss, options.loss_scale_px);
-    let (pose, cost, iterations) = lm_refine(&cam, &px, &pw, &idx, start, &loss, options.max_iterations);
+    let (pose, cost, iterations) = lm_refine(cam, px, pw, &idx, start, &loss, options.max_iterations);
     let (mut sq, mut n) = (0.0, 0usize);
     for i in 0..px.len() {
-        let e = reproj_err2(&cam, &pose, &pw[i], &px[i]);
+        let e = reproj_err2(cam, &pose, &pw[i], &px[i]);
         if e.is_finite() {
             sq += e;
             n += 1;
         }
     }
     let rmse_px = if n > 0 { (sq / n as f64).sqrt() } else { f64::INFINITY };
-    Ok(RefineResult { pose: pose.to_camera_to_map(), cost, rmse_px, iterations })
+    RefineResult { pose: pose.to_camera_to_map(), cost, rmse_px, iterations }
 }
 
 /// Covariance of a camera-to-map pose given its (inlier) correspondences; see the module doc for

@@ -6,7 +6,7 @@
 //! positions. Nothing is allocated inside the sampling loop.
 
 use super::epnp::epnp_normalized;
-use super::lm::{check_basic, covariance, finite_pairs, lm_refine, reproj_err2, Cam, Loss, RefineOptions, RefineResult, MIN_DEPTH};
+use super::lm::{check_basic, covariance, finite_pairs, lm_refine, refine_all, reproj_err2, Cam, Loss, RefineOptions, RefineResult, MIN_DEPTH};
 use super::p3p::p3p_unit;
 use super::rng::WyRand;
 use super::{MapToCamera, PnpError, PnpParams, PnpSolution, RobustLoss};
@@ -475,17 +475,5 @@ pub fn solve_pnp_nonminimal(
     let cam = Cam::new(intrinsics);
     let uv: Vec<Vector2<f64>> = px.iter().map(|p| Vector2::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy)).collect();
     let init = epnp_normalized(&uv, &pw)?;
-    let idx: Vec<usize> = (0..px.len()).collect();
-    let loss = Loss::new(options.loss, options.loss_scale_px);
-    let (pose, cost, iterations) = lm_refine(&cam, &px, &pw, &idx, init, &loss, options.max_iterations);
-    let (mut sq, mut k) = (0.0, 0usize);
-    for i in 0..px.len() {
-        let e = reproj_err2(&cam, &pose, &pw[i], &px[i]);
-        if e.is_finite() {
-            sq += e;
-            k += 1;
-        }
-    }
-    let rmse_px = if k > 0 { (sq / k as f64).sqrt() } else { f64::INFINITY };
-    Ok(RefineResult { pose: pose.to_camera_to_map(), cost, rmse_px, iterations })
+    Ok(refine_all(&cam, &px, &pw, init, options))
 }
