@@ -91,35 +91,34 @@ fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
     assert!(loc.failure.is_none() && loc.pose.is_some(), "{:?}", loc.failure);
 }
 
+/// Localizes every frame of a shared real bag; `None` (and a printed reason) when it is absent.
+fn real_bag_summary(name: &str, method: Method) -> Option<(angle_i2p::eval::Summary, f64)> {
+    let Some(bag) = shared_bag(name) else {
+        eprintln!("SKIP: ../shared/data/{name} is absent");
+        return None;
+    };
+    let input = read_frames(&bag, &Params::default().topics).unwrap();
+    let (rows, raw_ir) = localize_all(&input.frames, method);
+    assert!((app::raw_inlier_ratio(&input).ir - raw_ir).abs() < 1e-9);
+    let s = summarize(&rows);
+    eprintln!("{name} {}: {s:?} (raw IR {raw_ir:.2})", method.name());
+    Some((s, raw_ir))
+}
+
 /// The spine's acceptance bar on real data: the consistency rejector finds ≥ 95 % of the
 /// poses of `redkitchen-hard-val` (PoseLib LO-RANSAC: 95 %, OpenCV RANSAC-1k: 45 %) with
 /// twice the raw inlier ratio.
 #[test]
 fn consistency_rejection_on_real_hard_val() {
-    let Some(bag) = shared_bag("redkitchen-hard-val") else {
-        eprintln!("SKIP: ../shared/data/redkitchen-hard-val is absent");
-        return;
-    };
-    let input = read_frames(&bag, &Params::default().topics).unwrap();
-    let (rows, raw_ir) = localize_all(&input.frames, Method::Consistency);
-    let s = summarize(&rows);
-    eprintln!("hard-val consistency: {s:?} (raw IR {raw_ir:.2})");
+    let Some((s, raw_ir)) = real_bag_summary("redkitchen-hard-val", Method::Consistency) else { return };
     assert!(s.rr >= 95.0, "RR {:.1} %", s.rr);
     assert!(s.ir >= 2.0 * raw_ir, "IR {:.1} % vs raw {raw_ir:.1} %", s.ir);
-    assert!((app::raw_inlier_ratio(&input).ir - raw_ir).abs() < 1e-9);
 }
 
 /// Accuracy on the easy tier: MRE ≤ 0.62° and MTE ≤ 0.017 m on `redkitchen-sift-val`.
 #[test]
 fn consistency_accuracy_on_real_sift_val() {
-    let Some(bag) = shared_bag("redkitchen-sift-val") else {
-        eprintln!("SKIP: ../shared/data/redkitchen-sift-val is absent");
-        return;
-    };
-    let input = read_frames(&bag, &Params::default().topics).unwrap();
-    let (rows, _) = localize_all(&input.frames, Method::Consistency);
-    let s = summarize(&rows);
-    eprintln!("sift-val consistency: {s:?}");
+    let Some((s, _)) = real_bag_summary("redkitchen-sift-val", Method::Consistency) else { return };
     assert_eq!(s.rr, 100.0);
     assert!(s.mre.unwrap() <= 0.62 && s.mte.unwrap() <= 0.017, "{s:?}");
 }
