@@ -4,7 +4,7 @@ VENV := .venv
 CARGO ?= cargo
 DEMO_BAG := bags/synth-hard
 
-.PHONY: all build demo test py-venv bench bags clean
+.PHONY: all build demo test py-venv bench bags ort training-env clean
 
 all: build
 
@@ -32,9 +32,17 @@ test: py-venv
 bench:
 	$(CARGO) bench
 
+# ONNX Runtime's shared library (PyPI wheel onnxruntime==1.31.1) into .ort/, for the learned rejector.
+ort:
+	./scripts/fetch_onnxruntime.sh
+
+# PyTorch 2.15.0 (CPU use) and its pinned libraries in training/.venv (~4.4 GB, once; not in CI).
+training-env:
+	bash training/setup.sh
+
 # Regenerate the synthetic bags shipped in bags/ (deterministic seeds).
 bags: build
 	./scripts/make_bags.sh
 
 clean:
-	rm -rf target out $(VENV)
+	rm -rf target out $(VENV) .ort training/.venv
