@@ -283,6 +283,14 @@ impl FrameAssembler {
             .collect()
     }
 
+    /// Hands out the frame waiting at `stamp` as it is, noting `reason` (e.g. a wall-clock
+    /// time-out decided by the caller); `None` if nothing waits there.
+    pub fn take(&mut self, stamp: Stamp, reason: String) -> Option<Assembled> {
+        let mut p = self.pending.remove(&stamp)?;
+        p.errors.push(reason);
+        Some(self.assemble(stamp, p))
+    }
+
     /// Hands out every frame still waiting, sorted by stamp.
     pub fn finish(&mut self) -> Vec<Assembled> {
         std::mem::take(&mut self.pending).into_iter().map(|(s, p)| self.assemble(s, p)).collect()

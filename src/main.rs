@@ -15,7 +15,11 @@ use angle_i2p::pipeline::{Localizer, Method};
 use angle_i2p::synth::{generate, SynthConfig, PRESETS};
 
 #[derive(Parser)]
-#[command(name = "angle-i2p", version, about = "Camera localization against a point map with Angle-I2P outlier rejection")]
+#[command(
+    name = "angle-i2p",
+    version,
+    about = "Camera localization against a point map with Angle-I2P outlier rejection"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -53,11 +57,30 @@ enum Command {
         #[arg(long)]
         params_file: Option<PathBuf>,
     },
+    /// Print the last `/diagnostics` status of each name recorded in a bag (e.g. `node --record`).
+    Diagnostics { bag: PathBuf },
     /// Print the effective parameters as a ROS 2 params file.
     Params {
         #[arg(long)]
         params_file: Option<PathBuf>,
     },
+    /// Run the live ROS 2 node over DDS (ros2-client/RustDDS) until SIGINT/SIGTERM.
+    ///
+    /// Respects ROS_DOMAIN_ID. ROS arguments go last: `--ros-args -r from:=to -p name:=value
+    /// --params-file F -r __ns:=/ns -r __node:=name`.
+    Node {
+        /// ROS 2 params file (applied before the `--ros-args` ones).
+        #[arg(long)]
+        params_file: Option<PathBuf>,
+        /// Also write everything the node publishes to this new bag directory.
+        #[arg(long)]
+        record: Option<PathBuf>,
+        /// `--ros-args` and everything after it.
+        #[arg(long = "ros-args", num_args = 0.., allow_hyphen_values = true, value_name = "ARGS")]
+        ros_args: Option<Vec<String>>,
+    },
+    /// Publish a bag's messages over DDS with their recorded timing (like `ros2 bag play`).
+    Play(angle_i2p::play::PlayArgs),
     /// Write a synthetic bag (room of planes and boxes, camera path, ground truth).
     Synth {
         /// Output bag directory (replaced if it exists).
@@ -128,7 +151,11 @@ fn run(cli: Cli) -> Result<()> {
                         loc.timings.pnp_ms,
                         loc.failure.as_ref().map(|f| format!(" — no pose: {f}")).unwrap_or_default()
                     );
-                    if bar.is_hidden() { eprintln!("{line}") } else { bar.println(line) }
+                    if bar.is_hidden() {
+                        eprintln!("{line}")
+                    } else {
+                        bar.println(line)
+                    }
                 }
             })?;
             bar.finish_and_clear();
@@ -158,6 +185,37 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        Command::Node { params_file, record, ros_args } => {
+            let ros_args = match ros_args {
+                Some(rest) => std::iter::once("--ros-args".to_string()).chain(rest).collect(),
+                None => Vec::new(),
+            };
+            angle_i2p::node::run(angle_i2p::node::NodeConfig { params_file, ros_args, record })
+        }
+        Command::Play(args) => {
+            let report = angle_i2p::play::play(&args)?;
+            println!("{report}");
+            Ok(())
+        }
+        Command::Diagnostics { bag } => {
+            let reader = angle_i2p::bag::BagReader::open(&bag)?;
+            let mut last = std::collections::BTreeMap::new();
+            for m in reader.messages().iter().filter(|m| m.topic() == app::DIAGNOSTICS_TOPIC) {
+                let msg: angle_i2p::msgs::DiagnosticArray = angle_i2p::msgs::from_cdr(&m.data)
+                    .with_context(|| format!("{}: /diagnostics at {}", bag.display(), m.log_time))?;
+                for status in msg.status {
+                    last.insert(status.name.clone(), status);
+                }
+            }
+            anyhow::ensure!(!last.is_empty(), "{}: no {} messages", bag.display(), app::DIAGNOSTICS_TOPIC);
+            for (name, status) in last {
+                println!("{name}: {}", status.message);
+                for kv in status.values {
+                    println!("  {} = {}", kv.key, kv.value);
+                }
+            }
+            Ok(())
+        }
         Command::Params { params_file } => {
             let params = load_params(params_file.as_deref())?;
             let mut node = serde_yaml::Mapping::new();
@@ -173,7 +231,8 @@ fn run(cli: Cli) -> Result<()> {
             let mut rows = vec![("raw matches (IR only)".to_string(), app::raw_inlier_ratio(&input))];
             let mut evaluations = Vec::new();
             for e in &est {
-                let ev = app::evaluate(&input, e, &params.topics).with_context(|| format!("evaluating {}", e.display()))?;
+                let ev =
+                    app::evaluate(&input, e, &params.topics).with_context(|| format!("evaluating {}", e.display()))?;
                 rows.push((ev.method.clone(), ev.summary.clone()));
                 evaluations.push(ev);
             }
@@ -197,7 +256,8 @@ fn run(cli: Cli) -> Result<()> {
                 let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
                 // Fields of the file override the preset's.
                 let mut base = serde_yaml::to_value(&cfg)?;
-                let over: serde_yaml::Value = serde_yaml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+                let over: serde_yaml::Value =
+                    serde_yaml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
                 if let (Some(b), Some(o)) = (base.as_mapping_mut(), over.as_mapping()) {
                     for (k, v) in o {
                         b.insert(k.clone(), v.clone());

@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::bag::TopicMap;
 use crate::consistency::ScaleShiftParams;
 use crate::geometry::DepthKind;
+use crate::node::NodeParams;
 use crate::pipeline::{FinalRefine, Method};
 use crate::pnp::PnpParams;
 use crate::reject::SpectralParams;
@@ -31,6 +32,8 @@ pub struct Params {
     pub seed: u64,
     /// Topic names.
     pub topics: TopicMap,
+    /// The live node: queue, frame matching, TF, diagnostics, debug image.
+    pub node: NodeParams,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -44,8 +47,10 @@ pub enum ParamsError {
 impl Params {
     /// Reads a ROS 2 params file: the `ros__parameters` of node `angle_i2p` (or of `/**`).
     pub fn from_ros_params_file(path: &Path) -> Result<Self, ParamsError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ParamsError::Io { path: path.display().to_string(), source })?;
-        Self::from_ros_params_yaml(&text).map_err(|message| ParamsError::Parse { path: path.display().to_string(), message })
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| ParamsError::Io { path: path.display().to_string(), source })?;
+        Self::from_ros_params_yaml(&text)
+            .map_err(|message| ParamsError::Parse { path: path.display().to_string(), message })
     }
 
     pub fn from_ros_params_yaml(text: &str) -> Result<Self, String> {

@@ -10,7 +10,8 @@ pub fn manifest() -> PathBuf {
 
 /// `../shared/data` (or `$ANGLE_I2P_DATA`) when present.
 pub fn shared_data() -> Option<PathBuf> {
-    let dir = std::env::var_os("ANGLE_I2P_DATA").map(PathBuf::from).unwrap_or_else(|| manifest().join("../shared/data"));
+    let dir =
+        std::env::var_os("ANGLE_I2P_DATA").map(PathBuf::from).unwrap_or_else(|| manifest().join("../shared/data"));
     dir.is_dir().then_some(dir)
 }
 
@@ -21,7 +22,8 @@ pub fn shared_bag(name: &str) -> Option<PathBuf> {
 
 /// The Python with the readers and the evaluator's packages (`make py-venv`).
 pub fn python() -> Option<PathBuf> {
-    let p = std::env::var_os("ANGLE_I2P_PYTHON").map(PathBuf::from).unwrap_or_else(|| manifest().join(".venv/bin/python"));
+    let p =
+        std::env::var_os("ANGLE_I2P_PYTHON").map(PathBuf::from).unwrap_or_else(|| manifest().join(".venv/bin/python"));
     p.exists().then_some(p)
 }
 

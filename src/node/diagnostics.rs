@@ -1,0 +1,180 @@
+//! Counters of the live node and their `/diagnostics` message.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::time::Instant;
+
+use crate::eval::median;
+use crate::frame::Stamp;
+use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue};
+
+/// Name of the node's aggregated diagnostics status.
+pub const NODE_STATUS_NAME: &str = "angle_i2p: node";
+
+/// Latencies kept for the median.
+const LATENCY_WINDOW: usize = 100;
+
+/// What the node has seen and done. `drops` are frames (or messages) that never reached the
+/// localizer, by reason; `errors` are localizer failures and bad messages, by reason.
+#[derive(Debug)]
+pub struct Stats {
+    started: Instant,
+    pub frames_in: u64,
+    pub frames_localized: u64,
+    pub frames_failed: u64,
+    pub maps_received: u64,
+    pub map_points: usize,
+    pub drops: BTreeMap<String, u64>,
+    pub errors: BTreeMap<String, u64>,
+    pub last_failure: Option<String>,
+    pub last_stamp: Option<Stamp>,
+    /// Most frames ever waiting for the worker (just after a frame was queued).
+    pub queued_max: usize,
+    latencies_ms: VecDeque<f64>,
+    processing_ms: VecDeque<f64>,
+    /// (time, frames_in, frames_localized) at the last report, for rates.
+    last_report: (Instant, u64, u64),
+}
+
+impl Default for Stats {
+    fn default() -> Self {
+        let now = Instant::now();
+        Self {
+            started: now,
+            frames_in: 0,
+            frames_localized: 0,
+            frames_failed: 0,
+            maps_received: 0,
+            map_points: 0,
+            drops: BTreeMap::new(),
+            errors: BTreeMap::new(),
+            last_failure: None,
+            last_stamp: None,
+            queued_max: 0,
+            latencies_ms: VecDeque::new(),
+            processing_ms: VecDeque::new(),
+            last_report: (now, 0, 0),
+        }
+    }
+}
+
+impl Stats {
+    pub fn drop_frame(&mut self, reason: &str, detail: impl Into<String>) {
+        *self.drops.entry(reason.to_string()).or_default() += 1;
+        self.last_failure = Some(detail.into());
+    }
+
+    pub fn error(&mut self, reason: &str, detail: impl Into<String>) {
+        *self.errors.entry(reason.to_string()).or_default() += 1;
+        self.last_failure = Some(detail.into());
+    }
+
+    pub fn drop_count(&self, reason: &str) -> u64 {
+        self.drops.get(reason).copied().unwrap_or(0)
+    }
+
+    pub fn error_count(&self, reason: &str) -> u64 {
+        self.errors.get(reason).copied().unwrap_or(0)
+    }
+
+    /// One frame went through the localizer: `latency_ms` from its first part's arrival to its
+    /// outputs being published, `processing_ms` the localizer's own time.
+    pub fn frame_done(&mut self, stamp: Stamp, localized: bool, latency_ms: f64, processing_ms: f64) {
+        if localized {
+            self.frames_localized += 1;
+        } else {
+            self.frames_failed += 1;
+        }
+        self.last_stamp = Some(stamp);
+        for (window, v) in [(&mut self.latencies_ms, latency_ms), (&mut self.processing_ms, processing_ms)] {
+            if window.len() == LATENCY_WINDOW {
+                window.pop_front();
+            }
+            window.push_back(v);
+        }
+    }
+
+    /// The aggregated status, with rates since the previous call.
+    pub fn report(&mut self, stamp: Stamp, node_name: &str) -> DiagnosticArray {
+        let now = Instant::now();
+        let (t0, in0, loc0) = self.last_report;
+        let dt = now.duration_since(t0).as_secs_f64().max(1e-3);
+        let rate_in = (self.frames_in - in0) as f64 / dt;
+        let rate_loc = (self.frames_localized - loc0) as f64 / dt;
+        self.last_report = (now, self.frames_in, self.frames_localized);
+        let lat: Vec<f64> = self.latencies_ms.iter().copied().collect();
+        let proc_: Vec<f64> = self.processing_ms.iter().copied().collect();
+        let mut values = vec![
+            ("uptime_s", format!("{:.1}", now.duration_since(self.started).as_secs_f64())),
+            ("frames_in", self.frames_in.to_string()),
+            ("frames_localized", self.frames_localized.to_string()),
+            ("frames_failed", self.frames_failed.to_string()),
+            ("rate_in_hz", format!("{rate_in:.2}")),
+            ("rate_localized_hz", format!("{rate_loc:.2}")),
+            ("latency_ms_median", median(&lat).map(|v| format!("{v:.2}")).unwrap_or_default()),
+            ("processing_ms_median", median(&proc_).map(|v| format!("{v:.2}")).unwrap_or_default()),
+            ("queued_max", self.queued_max.to_string()),
+            ("maps_received", self.maps_received.to_string()),
+            ("map_points", self.map_points.to_string()),
+            ("dropped_total", self.drops.values().sum::<u64>().to_string()),
+            ("errors_total", self.errors.values().sum::<u64>().to_string()),
+            ("last_failure", self.last_failure.clone().unwrap_or_default()),
+            ("last_stamp", self.last_stamp.map(|s| s.to_string()).unwrap_or_default()),
+        ]
+        .into_iter()
+        .map(|(k, v)| KeyValue { key: k.into(), value: v })
+        .collect::<Vec<_>>();
+        values.extend(self.drops.iter().map(|(k, v)| KeyValue { key: format!("dropped.{k}"), value: v.to_string() }));
+        values.extend(self.errors.iter().map(|(k, v)| KeyValue { key: format!("error.{k}"), value: v.to_string() }));
+        let (level, message) = if self.maps_received == 0 {
+            (DiagnosticStatus::WARN, "no map yet".to_string())
+        } else if self.frames_in == 0 {
+            (DiagnosticStatus::OK, "waiting for frames".to_string())
+        } else if self.frames_localized == 0 {
+            (DiagnosticStatus::WARN, "no frame localized yet".to_string())
+        } else {
+            (DiagnosticStatus::OK, format!("{} of {} frames localized", self.frames_localized, self.frames_in))
+        };
+        DiagnosticArray {
+            header: Header::new(stamp, ""),
+            status: vec![DiagnosticStatus {
+                level,
+                name: NODE_STATUS_NAME.into(),
+                message,
+                hardware_id: node_name.into(),
+                values,
+            }],
+        }
+    }
+}
+
+/// The value of `key` in the node's status of a diagnostics message.
+pub fn status_value<'a>(msg: &'a DiagnosticArray, key: &str) -> Option<&'a str> {
+    msg.status
+        .iter()
+        .filter(|s| s.name == NODE_STATUS_NAME)
+        .flat_map(|s| s.values.iter())
+        .find(|kv| kv.key == key)
+        .map(|kv| kv.value.as_str())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn report_counts_by_reason() {
+        let mut s = Stats { frames_in: 3, maps_received: 1, ..Default::default() };
+        s.drop_frame("queue_full", "frame 1 dropped");
+        s.drop_frame("queue_full", "frame 2 dropped");
+        s.error("pnp", "frame 3: PnP failed");
+        s.frame_done(3, false, 12.0, 10.0);
+        s.frame_done(4, true, 8.0, 6.0);
+        let r = s.report(5, "/angle_i2p");
+        assert_eq!(status_value(&r, "dropped.queue_full"), Some("2"));
+        assert_eq!(status_value(&r, "error.pnp"), Some("1"));
+        assert_eq!(status_value(&r, "frames_localized"), Some("1"));
+        assert_eq!(status_value(&r, "latency_ms_median"), Some("10.00"));
+        assert_eq!(status_value(&r, "last_stamp"), Some("4"));
+        assert_eq!(r.header.stamp.to_nanos(), 5);
+    }
+}

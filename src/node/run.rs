@@ -1,0 +1,748 @@
+//! The node's tasks: readers → ingest (assembly, time-outs, map) → queue → worker → outputs,
+//! and the diagnostics timer.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, Context as _, Result};
+use futures::StreamExt;
+use ros2_client::{Publisher, Subscription};
+use tokio::sync::mpsc;
+
+use super::args::{Names, NodeParams, ResolvedParams};
+use super::dds;
+use super::diagnostics::Stats;
+use super::queue::DropOldestQueue;
+use crate::bag::BagWriter;
+use crate::frame::{Assembled, Frame, FrameAssembler, FramePart, IncompleteFrame, MapCloud, PartKind, Stamp};
+use crate::msgs::{self, convert, RosMessage};
+use crate::pipeline::{Localization, Localizer, Method};
+
+/// Resolved topic names of the node.
+#[derive(Clone, Debug)]
+pub struct Topics {
+    pub camera_info: String,
+    pub image: String,
+    pub depth_prior: String,
+    pub correspondences: String,
+    pub map: String,
+    pub pose: String,
+    pub pose_with_covariance: String,
+    pub output_correspondences: String,
+    pub diagnostics: String,
+    pub tf: String,
+    pub debug_image: String,
+}
+
+impl Topics {
+    pub fn new(params: &ResolvedParams, names: &Names) -> Self {
+        let (t, n) = (&params.params.topics, &params.node);
+        Self {
+            camera_info: names.resolve(&t.camera_info),
+            image: names.resolve(&t.image),
+            depth_prior: names.resolve(&t.depth_prior),
+            correspondences: names.resolve(&t.correspondences),
+            map: names.resolve(&t.map),
+            pose: names.resolve(&t.pose),
+            pose_with_covariance: names.resolve(&t.pose_with_covariance),
+            output_correspondences: names.resolve(&t.output_correspondences),
+            diagnostics: names.resolve(&n.diagnostics_topic),
+            tf: names.resolve(&n.tf_topic),
+            debug_image: names.resolve(&n.debug_image_topic),
+        }
+    }
+}
+
+fn log(msg: impl std::fmt::Display) {
+    eprintln!("[angle_i2p] {msg}");
+}
+
+fn now_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos().min(i64::MAX as u128) as i64)
+        .unwrap_or(0)
+}
+
+/// What a reader task hands to the ingest task.
+enum Input {
+    Part(FramePart),
+    /// A message that decoded but did not convert; `stamp` from its header.
+    PartError {
+        kind: PartKind,
+        stamp: Stamp,
+        reason: String,
+    },
+    Map(Result<MapCloud, String>),
+    /// The DDS sample could not be deserialized (no header to attribute it to).
+    ReadError {
+        topic: String,
+        reason: String,
+    },
+}
+
+/// Writes what the node publishes to a bag (`--record`); write errors are logged once and
+/// counted, never fatal.
+#[derive(Clone, Default)]
+struct Recorder {
+    writer: Arc<Mutex<Option<BagWriter>>>,
+}
+
+impl Recorder {
+    fn write<M: RosMessage>(&self, topic: &str, msg: &M, stats: &Mutex<Stats>) {
+        let mut guard = self.writer.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(w) = guard.as_mut() {
+            if let Err(e) = w.write(topic, now_ns(), msg) {
+                log(format!("recording {topic} failed: {e}"));
+                lock(stats).error("record_failed", format!("recording {topic}: {e}"));
+            }
+        }
+    }
+
+    fn finish(&self) -> Option<Result<PathBuf>> {
+        let w = self.writer.lock().unwrap_or_else(|p| p.into_inner()).take()?;
+        Some(w.finish().map_err(Into::into))
+    }
+}
+
+fn lock(stats: &Mutex<Stats>) -> std::sync::MutexGuard<'_, Stats> {
+    stats.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// One frame waiting for the worker.
+struct Job {
+    frame: Frame,
+    arrived: Instant,
+}
+
+/// Spawns a reader thread that drains `sub`, converting each message with `convert`.
+/// (ros2-client's sample streams are not `Send`, so each reader gets its own small thread;
+/// it only decodes and converts, and ends when the ingest side is gone.)
+fn spawn_reader<M, F>(
+    sub: Subscription<M>,
+    topic: String,
+    tx: mpsc::Sender<Input>,
+    convert: F,
+) -> Result<std::thread::JoinHandle<()>>
+where
+    M: RosMessage + Send + 'static,
+    F: Fn(M) -> Input + Send + 'static,
+{
+    std::thread::Builder::new()
+        .name(format!("reader {topic}"))
+        .spawn(move || {
+            futures::executor::block_on(async move {
+                let stream = sub.async_stream();
+                futures::pin_mut!(stream);
+                while let Some(r) = stream.next().await {
+                    let input = match r {
+                        Ok((msg, _info)) => convert(msg),
+                        Err(e) => Input::ReadError { topic: topic.clone(), reason: format!("{e:?}") },
+                    };
+                    if tx.send(input).await.is_err() {
+                        break;
+                    }
+                }
+            })
+        })
+        .with_context(|| "spawning a reader thread".to_string())
+}
+
+fn part_or_error(kind: PartKind, stamp: Stamp, r: Result<FramePart, msgs::MsgError>) -> Input {
+    match r {
+        Ok(p) => Input::Part(p),
+        Err(e) => Input::PartError { kind, stamp, reason: e.to_string() },
+    }
+}
+
+/// `part` with its stamp replaced (stamp-tolerant matching).
+fn restamp(part: FramePart, s: Stamp) -> FramePart {
+    match part {
+        FramePart::CameraInfo { intrinsics, .. } => FramePart::CameraInfo { stamp: s, intrinsics },
+        FramePart::Correspondences { camera_frame_id, map_frame_id, correspondences, .. } => {
+            FramePart::Correspondences { stamp: s, camera_frame_id, map_frame_id, correspondences }
+        }
+        FramePart::DepthPrior { depth, .. } => FramePart::DepthPrior { stamp: s, depth },
+        FramePart::Image { image, .. } => FramePart::Image { stamp: s, image },
+        FramePart::GroundTruthPose { pose, .. } => FramePart::GroundTruthPose { stamp: s, pose },
+        FramePart::GroundTruthDepth { depth, .. } => FramePart::GroundTruthDepth { stamp: s, depth },
+    }
+}
+
+/// Joins parts into frames, times out incomplete ones, holds the map, feeds the queue.
+struct Ingest {
+    assembler: FrameAssembler,
+    /// Stamps waiting in the assembler → arrival of their first part.
+    pending: BTreeMap<Stamp, Instant>,
+    tolerance_ns: i64,
+    timeout: Duration,
+    require_map: bool,
+    map: Option<MapCloud>,
+    queue: Arc<DropOldestQueue<Job>>,
+    stats: Arc<Mutex<Stats>>,
+}
+
+impl Ingest {
+    /// The pending stamp within tolerance of `stamp`, else `stamp` itself.
+    fn snap(&self, stamp: Stamp) -> Stamp {
+        if self.tolerance_ns <= 0 || self.pending.contains_key(&stamp) {
+            return stamp;
+        }
+        let lo = stamp.saturating_sub(self.tolerance_ns);
+        let hi = stamp.saturating_add(self.tolerance_ns);
+        self.pending.range(lo..=hi).map(|(s, _)| *s).min_by_key(|s| (s - stamp).unsigned_abs()).unwrap_or(stamp)
+    }
+
+    fn on_input(&mut self, input: Input) {
+        match input {
+            Input::Part(part) => {
+                let stamp = self.snap(part.stamp());
+                self.pending.entry(stamp).or_insert_with(Instant::now);
+                let done = self.assembler.push(restamp(part, stamp));
+                self.handle(done);
+            }
+            Input::PartError { kind, stamp, reason } => {
+                let stamp = self.snap(stamp);
+                log(format!("frame {stamp}: bad {}: {reason}", kind.name()));
+                lock(&self.stats)
+                    .error(&format!("invalid_{}", kind.name()), format!("frame {stamp}: {}: {reason}", kind.name()));
+                self.pending.entry(stamp).or_insert_with(Instant::now);
+                let done = self.assembler.push_error(stamp, kind, format!("{reason} (counted)"));
+                self.handle(done);
+            }
+            Input::Map(Ok(map)) => {
+                log(format!("map received: {} points in frame {:?}", map.points.len(), map.frame_id));
+                let mut s = lock(&self.stats);
+                s.maps_received += 1;
+                s.map_points = map.points.len();
+                self.map = Some(map);
+            }
+            Input::Map(Err(reason)) => {
+                log(format!("bad map (kept the previous one): {reason}"));
+                lock(&self.stats).error("invalid_map", format!("map: {reason}"));
+            }
+            Input::ReadError { topic, reason } => {
+                log(format!("{topic}: undecodable message: {reason}"));
+                lock(&self.stats).error("undecodable_message", format!("{topic}: {reason}"));
+            }
+        }
+    }
+
+    /// Hands out, oldest first, the frames whose first part arrived more than the time-out ago.
+    fn expire(&mut self) {
+        let now = Instant::now();
+        while let Some((&stamp, &first)) = self.pending.iter().next() {
+            if now.duration_since(first) < self.timeout {
+                break;
+            }
+            let reason = format!("timed out after {} ms waiting for parts", self.timeout.as_millis());
+            let out = self.assembler.take(stamp, reason);
+            self.pending.remove(&stamp);
+            self.handle(out);
+        }
+    }
+
+    fn handle(&mut self, done: Option<Assembled>) {
+        let Some(done) = done else { return };
+        let arrived = self.pending.remove(&done.stamp()).unwrap_or_else(Instant::now);
+        match done {
+            Assembled::Complete(frame) => self.enqueue(frame, arrived),
+            Assembled::Partial(frame, report) => {
+                self.count_incomplete(&report);
+                self.enqueue(frame, arrived);
+            }
+            Assembled::Dropped(report) => self.count_incomplete(&report),
+        }
+    }
+
+    fn count_incomplete(&self, r: &IncompleteFrame) {
+        let detail = crate::app::describe(r);
+        log(&detail);
+        let mut s = lock(&self.stats);
+        if r.dropped {
+            let required = PartKind::REQUIRED.iter().map(|k| k.name()).find(|n| r.missing.contains(n));
+            let reason = format!("missing_{}", required.unwrap_or("parts"));
+            s.drop_frame(&reason, detail);
+        } else {
+            for m in &r.missing {
+                s.error(&format!("partial_missing_{m}"), detail.clone());
+            }
+            if r.missing.is_empty() && !r.errors.is_empty() {
+                s.error("partial_frame", detail);
+            }
+        }
+    }
+
+    fn enqueue(&mut self, frame: Frame, arrived: Instant) {
+        let stamp = frame.stamp;
+        let mut s = lock(&self.stats);
+        s.frames_in += 1;
+        if self.require_map && self.map.is_none() {
+            s.drop_frame("no_map", format!("frame {stamp}: no map received yet"));
+            log(format!("frame {stamp}: dropped, no map received yet"));
+            return;
+        }
+        if let Some(map) = &self.map {
+            if !map.frame_id.is_empty() && !frame.map_frame_id.is_empty() && map.frame_id != frame.map_frame_id {
+                s.error(
+                    "map_frame_mismatch",
+                    format!("frame {stamp}: correspondences in {:?}, map in {:?}", frame.map_frame_id, map.frame_id),
+                );
+            }
+        }
+        drop(s);
+        let dropped = self.queue.push(Job { frame, arrived });
+        let mut stats = lock(&self.stats);
+        stats.queued_max = stats.queued_max.max(self.queue.len());
+        if let Some(old) = dropped {
+            let msg = format!("frame {}: dropped, queue full (newer frame {stamp} arrived)", old.frame.stamp);
+            log(&msg);
+            stats.drop_frame("queue_full", msg);
+        }
+    }
+}
+
+/// The worker's publishers.
+struct Outputs {
+    topics: Topics,
+    pose: Publisher<msgs::PoseStamped>,
+    pose_cov: Publisher<msgs::PoseWithCovarianceStamped>,
+    kept: Publisher<msgs::Correspondences>,
+    tf: Option<Publisher<msgs::TFMessage>>,
+    debug: Option<Publisher<msgs::Image>>,
+    recorder: Recorder,
+    stats: Arc<Mutex<Stats>>,
+}
+
+impl Outputs {
+    async fn send<M: RosMessage + Clone + std::fmt::Debug>(&self, p: &Publisher<M>, topic: &str, msg: M) {
+        self.recorder.write(topic, &msg, &self.stats);
+        if let Err(e) = p.async_publish(msg).await {
+            log(format!("publishing on {topic} failed: {e:?}"));
+            lock(&self.stats).error("publish_failed", format!("{topic}: {e:?}"));
+        }
+    }
+
+    /// Publishes one frame's results as `replay` writes them (same conversions).
+    async fn publish(&self, loc: &Localization, frame: &Frame) {
+        let t = loc.stamp;
+        let topics = &self.topics;
+        if let Some(pose) = &loc.pose {
+            self.send(&self.pose, &topics.pose, convert::pose_stamped(t, &loc.map_frame_id, pose)).await;
+            if let Some(cov) = &loc.covariance {
+                let m = convert::pose_with_covariance_stamped(t, &loc.map_frame_id, pose, cov);
+                self.send(&self.pose_cov, &topics.pose_with_covariance, m).await;
+            }
+            if let Some(tf) = &self.tf {
+                self.send(tf, &topics.tf, tf_message(loc, pose)).await;
+            }
+        }
+        let kept = convert::correspondences_msg(t, &loc.camera_frame_id, &loc.map_frame_id, &loc.kept);
+        self.send(&self.kept, &topics.output_correspondences, kept).await;
+        if let Some(debug) = &self.debug {
+            match debug_image(frame, loc) {
+                Ok(img) => self.send(debug, &topics.debug_image, img).await,
+                Err(e) => lock(&self.stats).error("debug_image", format!("frame {t}: {e}")),
+            }
+        }
+    }
+}
+
+/// TF `map_frame → camera_frame` = the camera-to-map pose.
+fn tf_message(loc: &Localization, pose: &nalgebra::Isometry3<f64>) -> msgs::TFMessage {
+    let p = convert::pose_from_isometry(pose);
+    msgs::TFMessage {
+        transforms: vec![msgs::TransformStamped {
+            header: msgs::Header::new(loc.stamp, loc.map_frame_id.as_str()),
+            child_frame_id: loc.camera_frame_id.clone(),
+            transform: msgs::Transform {
+                translation: msgs::Vector3 { x: p.position.x, y: p.position.y, z: p.position.z },
+                rotation: p.orientation,
+            },
+        }],
+    }
+}
+
+/// The camera image (rgb8) with kept correspondences as green and rejected ones as red
+/// 5×5 squares.
+fn debug_image(frame: &Frame, loc: &Localization) -> Result<msgs::Image> {
+    let enc = frame.image.as_ref().ok_or_else(|| anyhow!("no camera image for this frame"))?;
+    let mut img = image::load_from_memory(&enc.data).context("decoding the camera image")?.to_rgb8();
+    let (w, h) = img.dimensions();
+    let mut dot = |u: f64, v: f64, rgb: [u8; 3]| {
+        if !(u.is_finite() && v.is_finite()) {
+            return;
+        }
+        let (cu, cv) = (u.round() as i64, v.round() as i64);
+        for y in cv - 2..=cv + 2 {
+            for x in cu - 2..=cu + 2 {
+                if x >= 0 && y >= 0 && (x as u32) < w && (y as u32) < h {
+                    img.put_pixel(x as u32, y as u32, image::Rgb(rgb));
+                }
+            }
+        }
+    };
+    let kept: std::collections::HashSet<(u64, u64)> =
+        loc.kept.iter().map(|c| (c.pixel.x.to_bits(), c.pixel.y.to_bits())).collect();
+    for c in &frame.correspondences {
+        if !kept.contains(&(c.pixel.x.to_bits(), c.pixel.y.to_bits())) {
+            dot(c.pixel.x, c.pixel.y, [255, 0, 0]);
+        }
+    }
+    for c in &loc.kept {
+        dot(c.pixel.x, c.pixel.y, [0, 255, 0]);
+    }
+    Ok(msgs::Image {
+        header: msgs::Header::new(loc.stamp, loc.camera_frame_id.as_str()),
+        height: h,
+        width: w,
+        encoding: "rgb8".into(),
+        is_bigendian: 0,
+        step: w * 3,
+        data: img.into_raw(),
+    })
+}
+
+/// Runs `localizer` on `frame` on the blocking pool; a panic becomes a counted failure and a
+/// fresh localizer.
+async fn localize(localizer: Localizer, frame: Frame) -> (Localizer, Frame, Option<Localization>) {
+    let params = localizer.params().clone();
+    let handle = tokio::task::spawn_blocking(move || {
+        let mut localizer = localizer;
+        let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| localizer.process(&frame)));
+        (localizer, frame, out.ok())
+    });
+    match handle.await {
+        Ok(r) => r,
+        // The task itself died (cannot happen with catch_unwind, but never stop the worker).
+        Err(_) => (Localizer::new(params.clone()), dummy_frame(), None),
+    }
+}
+
+fn dummy_frame() -> Frame {
+    Frame {
+        stamp: 0,
+        camera_frame_id: String::new(),
+        map_frame_id: String::new(),
+        intrinsics: crate::geometry::Intrinsics { fx: 0.0, fy: 0.0, cx: 0.0, cy: 0.0, width: 0, height: 0 },
+        correspondences: Vec::new(),
+        depth_prior: None,
+        image: None,
+        ground_truth: None,
+    }
+}
+
+async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outputs: Outputs) {
+    while let Some(job) = queue.pop().await {
+        let stamp = job.frame.stamp;
+        let (back, frame, loc) = localize(localizer, job.frame).await;
+        localizer = back;
+        let Some(loc) = loc else {
+            log(format!("frame {stamp}: the localizer panicked; continuing with a fresh one"));
+            lock(&outputs.stats).error("panic", format!("frame {stamp}: localizer panicked"));
+            localizer = Localizer::new(localizer.params().clone());
+            continue;
+        };
+        outputs.publish(&loc, &frame).await;
+        let latency = job.arrived.elapsed().as_secs_f64() * 1e3;
+        let mut s = lock(&outputs.stats);
+        s.frame_done(stamp, loc.pose.is_some(), latency, loc.timings.total_ms);
+        if let Some(f) = &loc.failure {
+            s.error(f.key(), format!("frame {stamp}: {f}"));
+            drop(s);
+            log(format!("frame {stamp}: no pose: {f}"));
+        }
+    }
+}
+
+async fn shutdown_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
+}
+
+/// Runs the node until SIGINT/SIGTERM; `record` also writes every published message to a bag.
+pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<PathBuf>) -> Result<()> {
+    let topics = Topics::new(&resolved, &names);
+    let np: NodeParams = resolved.node.clone();
+    let params = resolved.params.clone();
+    let recorder = Recorder::default();
+    if let Some(path) = &record {
+        let w = BagWriter::create(path).with_context(|| format!("--record {}", path.display()))?;
+        *recorder.writer.lock().unwrap_or_else(|p| p.into_inner()) = Some(w);
+    }
+
+    let context = dds::context()?;
+    let mut node = dds::node(&context, &names.namespace, &names.node_name)?;
+    let spinner = dds::spawn_spinner(&mut node)?;
+    let stats = Arc::new(Mutex::new(Stats::default()));
+
+    // Outputs.
+    let out_qos = dds::reliable(10);
+    let outputs = Outputs {
+        pose: dds::publisher(&mut node, &topics.pose, &out_qos)?,
+        pose_cov: dds::publisher(&mut node, &topics.pose_with_covariance, &out_qos)?,
+        kept: dds::publisher(&mut node, &topics.output_correspondences, &out_qos)?,
+        tf: if np.publish_tf { Some(dds::publisher(&mut node, &topics.tf, &dds::reliable(100))?) } else { None },
+        debug: if np.debug_image {
+            Some(dds::publisher(&mut node, &topics.debug_image, &dds::sensor_data(5))?)
+        } else {
+            None
+        },
+        topics: topics.clone(),
+        recorder: recorder.clone(),
+        stats: stats.clone(),
+    };
+    let diag_pub: Publisher<msgs::DiagnosticArray> =
+        dds::publisher(&mut node, &topics.diagnostics, &dds::reliable(10))?;
+
+    // Inputs: what a frame waits for.
+    let mut expected = vec![PartKind::CameraInfo, PartKind::Correspondences];
+    let wants_prior = np.expect_depth_prior && params.method == Method::Consistency;
+    if wants_prior {
+        expected.push(PartKind::DepthPrior);
+    }
+    if np.debug_image {
+        expected.push(PartKind::Image);
+    }
+    let (tx, mut rx) = mpsc::channel::<Input>(256);
+    let mut readers = Vec::new();
+    let sensor = dds::sensor_data(10);
+    readers.push(spawn_reader(
+        dds::subscription::<msgs::CameraInfo>(&mut node, &topics.camera_info, &sensor)?,
+        topics.camera_info.clone(),
+        tx.clone(),
+        |m| {
+            let stamp = convert::stamp(&m.header);
+            let r =
+                convert::intrinsics_from_camera_info(&m).map(|intrinsics| FramePart::CameraInfo { stamp, intrinsics });
+            part_or_error(PartKind::CameraInfo, stamp, r)
+        },
+    )?);
+    readers.push(spawn_reader(
+        dds::subscription::<msgs::Correspondences>(&mut node, &topics.correspondences, &dds::reliable(10))?,
+        topics.correspondences.clone(),
+        tx.clone(),
+        |m| {
+            let stamp = convert::stamp(&m.header);
+            let r = convert::correspondences_from_msg(&m).map(|correspondences| FramePart::Correspondences {
+                stamp,
+                correspondences,
+                camera_frame_id: m.header.frame_id.clone(),
+                map_frame_id: m.map_frame_id.clone(),
+            });
+            part_or_error(PartKind::Correspondences, stamp, r)
+        },
+    )?);
+    if wants_prior {
+        readers.push(spawn_reader(
+            dds::subscription::<msgs::Image>(&mut node, &topics.depth_prior, &sensor)?,
+            topics.depth_prior.clone(),
+            tx.clone(),
+            |m| {
+                let stamp = convert::stamp(&m.header);
+                let r = convert::depth_from_image(&m).map(|depth| FramePart::DepthPrior { stamp, depth });
+                part_or_error(PartKind::DepthPrior, stamp, r)
+            },
+        )?);
+    }
+    if np.debug_image {
+        readers.push(spawn_reader(
+            dds::subscription::<msgs::CompressedImage>(&mut node, &topics.image, &sensor)?,
+            topics.image.clone(),
+            tx.clone(),
+            |m| Input::Part(FramePart::Image { stamp: convert::stamp(&m.header), image: convert::encoded_image(&m) }),
+        )?);
+    }
+    readers.push(spawn_reader(
+        dds::subscription::<msgs::PointCloud2>(&mut node, &topics.map, &dds::latched())?,
+        topics.map.clone(),
+        tx.clone(),
+        |m| Input::Map(convert::map_cloud_from_point_cloud(&m).map_err(|e| e.to_string())),
+    )?);
+    drop(tx);
+
+    let queue = Arc::new(DropOldestQueue::new(np.queue_depth));
+    let worker_task = tokio::spawn(worker(queue.clone(), Localizer::new(params.clone()), outputs));
+
+    let mut ingest = Ingest {
+        assembler: FrameAssembler::new(&expected),
+        pending: BTreeMap::new(),
+        tolerance_ns: np.stamp_tolerance_ns.max(0),
+        timeout: Duration::from_millis(np.frame_timeout_ms),
+        require_map: np.require_map,
+        map: None,
+        queue: queue.clone(),
+        stats: stats.clone(),
+    };
+    let diag_period = Duration::from_millis(np.diagnostics_period_ms.max(50));
+    let fq_name = names.fully_qualified();
+    log(format!(
+        "node {fq_name} on domain {}: method {}, queue_depth {}, frame_timeout {} ms; inputs {} {} {}{} {}; outputs {} {} {}{} {}",
+        context.domain_id(),
+        params.method.name(),
+        np.queue_depth,
+        np.frame_timeout_ms,
+        topics.camera_info,
+        topics.correspondences,
+        if wants_prior { topics.depth_prior.as_str() } else { "" },
+        if np.debug_image { format!(" {}", topics.image) } else { String::new() },
+        topics.map,
+        topics.pose,
+        topics.pose_with_covariance,
+        topics.output_correspondences,
+        if np.publish_tf { format!(" {}", topics.tf) } else { String::new() },
+        topics.diagnostics,
+    ));
+
+    let mut tick = tokio::time::interval(Duration::from_millis(20));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut diag_tick = tokio::time::interval(diag_period);
+    diag_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let shutdown = shutdown_signal();
+    futures::pin_mut!(shutdown);
+    loop {
+        tokio::select! {
+            _ = &mut shutdown => break,
+            input = rx.recv() => match input {
+                Some(i) => ingest.on_input(i),
+                None => break,
+            },
+            _ = tick.tick() => ingest.expire(),
+            _ = diag_tick.tick() => {
+                let msg = lock(&stats).report(now_ns(), &fq_name);
+                recorder.write(&topics.diagnostics, &msg, &stats);
+                if let Err(e) = diag_pub.async_publish(msg).await {
+                    log(format!("publishing diagnostics failed: {e:?}"));
+                }
+            }
+        }
+    }
+
+    log("shutting down");
+    // Reader threads end when they next see a message (the ingest side is gone) or with
+    // the process.
+    drop(rx);
+    drop(readers);
+    queue.close();
+    if tokio::time::timeout(Duration::from_secs(30), worker_task).await.is_err() {
+        log("the worker did not finish within 30 s");
+    }
+    let last = lock(&stats).report(now_ns(), &fq_name);
+    recorder.write(&topics.diagnostics, &last, &stats);
+    let _ = tokio::time::timeout(Duration::from_millis(500), diag_pub.async_publish(last)).await;
+    if let Some(r) = recorder.finish() {
+        match r {
+            Ok(p) => log(format!("recorded to {}", p.display())),
+            Err(e) => log(format!("finishing the recording failed: {e:#}")),
+        }
+    }
+    node.stop_spinner();
+    drop(node);
+    // The spinner thread ends with the node; do not wait on it for long.
+    let deadline = Instant::now() + Duration::from_secs(2);
+    while !spinner.is_finished() && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Intrinsics;
+
+    fn ingest(tolerance_ns: i64, timeout_ms: u64, require_map: bool) -> Ingest {
+        Ingest {
+            assembler: FrameAssembler::new(&[PartKind::DepthPrior]),
+            pending: BTreeMap::new(),
+            tolerance_ns,
+            timeout: Duration::from_millis(timeout_ms),
+            require_map,
+            map: None,
+            queue: Arc::new(DropOldestQueue::new(2)),
+            stats: Arc::new(Mutex::new(Stats::default())),
+        }
+    }
+
+    fn info(stamp: Stamp) -> Input {
+        let intrinsics = Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
+        Input::Part(FramePart::CameraInfo { stamp, intrinsics })
+    }
+
+    fn corr(stamp: Stamp) -> Input {
+        Input::Part(FramePart::Correspondences {
+            stamp,
+            camera_frame_id: "cam".into(),
+            map_frame_id: "map".into(),
+            correspondences: vec![],
+        })
+    }
+
+    fn prior(stamp: Stamp) -> Input {
+        Input::Part(FramePart::DepthPrior { stamp, depth: crate::geometry::DepthImage::new(1, 1, vec![1.0]) })
+    }
+
+    #[test]
+    fn tolerant_matching_joins_nearby_stamps() {
+        let mut i = ingest(1000, 10_000, false);
+        i.on_input(info(5_000));
+        i.on_input(corr(5_400));
+        i.on_input(prior(4_200));
+        assert_eq!(i.queue.len(), 1);
+        assert!(i.pending.is_empty());
+        let mut exact = ingest(0, 10_000, false);
+        exact.on_input(info(5_000));
+        exact.on_input(corr(5_400));
+        assert_eq!(exact.pending.len(), 2);
+    }
+
+    #[test]
+    fn no_map_timeouts_queue_drops_and_bad_parts_are_counted() {
+        let mut i = ingest(0, 0, true);
+        for s in [1, 2] {
+            i.on_input(info(s));
+            i.on_input(corr(s));
+            i.on_input(prior(s));
+        }
+        assert_eq!(lock(&i.stats).drop_count("no_map"), 2);
+        i.on_input(Input::Map(Ok(MapCloud { frame_id: "map".into(), points: vec![] })));
+        for s in [3, 4, 5] {
+            i.on_input(info(s));
+            i.on_input(corr(s));
+            i.on_input(prior(s));
+        }
+        assert_eq!(lock(&i.stats).drop_count("queue_full"), 1);
+        assert_eq!(i.queue.len(), 2);
+        // Only camera info: times out, dropped for missing correspondences.
+        i.on_input(info(6));
+        // Bad correspondences: counted, frame dropped when it times out.
+        i.on_input(Input::PartError { kind: PartKind::Correspondences, stamp: 7, reason: "#0 is not finite".into() });
+        std::thread::sleep(Duration::from_millis(2));
+        i.expire();
+        assert!(i.pending.is_empty());
+        let s = lock(&i.stats);
+        assert_eq!(s.drop_count("missing_correspondences"), 1);
+        assert_eq!(s.drop_count("missing_camera_info"), 1);
+        assert_eq!(s.error_count("invalid_correspondences"), 1);
+        assert_eq!(s.frames_in, 5);
+    }
+}

@@ -1,0 +1,221 @@
+//! `angle-i2p play`: publishes a rosbag2 bag over DDS with its recorded timing, like
+//! `ros2 bag play`. Each message's CDR bytes are decoded into the [`crate::msgs`] type of its
+//! topic and published with that topic's QoS: the map (`PointCloud2`) latched (reliable,
+//! transient local), camera images as sensor data (best effort), everything else reliable.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Result};
+use ros2_client::{Node, Publisher, QosProfile};
+
+use crate::bag::BagReader;
+use crate::msgs::{self, from_cdr, RosMessage};
+use crate::node::args::{Names, RosArgs};
+use crate::node::dds;
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct PlayArgs {
+    /// Bag: a rosbag2 directory or a bare .mcap file.
+    pub bag: PathBuf,
+    /// Speed factor on the recorded timing (2 = twice as fast).
+    #[arg(long, default_value_t = 1.0)]
+    pub rate: f64,
+    /// Start over at the end, until interrupted.
+    #[arg(long = "loop")]
+    pub loop_: bool,
+    /// Only these topics (repeatable; default: every topic with a known type).
+    #[arg(long = "topic")]
+    pub topics: Vec<String>,
+    /// Remap a topic, `from:=to` (repeatable).
+    #[arg(long = "remap", short = 'r')]
+    pub remaps: Vec<String>,
+    /// Before the first message, wait until this topic's publisher has a matched subscriber
+    /// (repeatable; at most --wait-timeout seconds, then go on with a warning).
+    #[arg(long = "wait-for")]
+    pub wait_for: Vec<String>,
+    #[arg(long, default_value_t = 10.0)]
+    pub wait_timeout: f64,
+    /// Keep the publishers this long after the last message (reliable repairs, latched map).
+    #[arg(long, default_value_t = 1.0)]
+    pub linger: f64,
+}
+
+/// What a play did.
+#[derive(Clone, Debug, Default)]
+pub struct PlayReport {
+    pub published: usize,
+    pub failed: usize,
+    pub skipped_topics: Vec<String>,
+    pub loops: usize,
+    pub seconds: f64,
+}
+
+impl std::fmt::Display for PlayReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "play: {} messages published in {:.2} s", self.published, self.seconds)?;
+        if self.loops > 1 {
+            write!(f, " ({} loops)", self.loops)?;
+        }
+        if self.failed > 0 {
+            write!(f, ", {} failed", self.failed)?;
+        }
+        if !self.skipped_topics.is_empty() {
+            write!(f, "; skipped (unknown type): {}", self.skipped_topics.join(", "))?;
+        }
+        Ok(())
+    }
+}
+
+/// A publisher of one topic that takes CDR bytes.
+trait CdrPublisher {
+    fn publish_cdr(&self, data: &[u8]) -> Result<(), String>;
+    fn subscriptions(&self, node: &Node) -> usize;
+}
+
+impl<M: RosMessage + std::fmt::Debug> CdrPublisher for Publisher<M> {
+    fn publish_cdr(&self, data: &[u8]) -> Result<(), String> {
+        let msg: M = from_cdr(data).map_err(|e| e.to_string())?;
+        self.publish(msg).map_err(|e| format!("{e:?}"))
+    }
+
+    fn subscriptions(&self, node: &Node) -> usize {
+        self.get_subscription_count(node)
+    }
+}
+
+/// QoS of a topic by its type.
+pub fn qos_for(type_name: &str) -> QosProfile {
+    match type_name {
+        "sensor_msgs/msg/PointCloud2" => dds::latched(),
+        "sensor_msgs/msg/Image" | "sensor_msgs/msg/CompressedImage" => dds::sensor_data(10),
+        _ => dds::reliable(100),
+    }
+}
+
+fn make_publisher(node: &mut Node, type_name: &str, topic: &str) -> Result<Option<Box<dyn CdrPublisher>>> {
+    fn boxed<M: RosMessage + std::fmt::Debug + 'static>(
+        node: &mut Node,
+        topic: &str,
+        qos: &QosProfile,
+    ) -> Result<Option<Box<dyn CdrPublisher>>> {
+        Ok(Some(Box::new(dds::publisher::<M>(node, topic, qos)?)))
+    }
+    let qos = qos_for(type_name);
+    macro_rules! by_type {
+        ($($ty:ty),* $(,)?) => {
+            $(if type_name == <$ty as RosMessage>::TYPE_NAME {
+                return boxed::<$ty>(node, topic, &qos);
+            })*
+        };
+    }
+    by_type!(
+        msgs::CameraInfo,
+        msgs::CompressedImage,
+        msgs::Image,
+        msgs::PointCloud2,
+        msgs::Correspondences,
+        msgs::PoseStamped,
+        msgs::PoseWithCovarianceStamped,
+        msgs::TFMessage,
+        msgs::DiagnosticArray,
+        msgs::Header,
+    );
+    Ok(None)
+}
+
+/// Publishes the bag; returns when done (or never with `--loop`, until interrupted).
+pub fn play(args: &PlayArgs) -> Result<PlayReport> {
+    if !(args.rate.is_finite() && args.rate > 0.0) {
+        bail!("--rate must be a positive number, got {}", args.rate);
+    }
+    let reader = BagReader::open(&args.bag)?;
+    let mut ros_args: Vec<String> = vec!["--ros-args".into()];
+    for r in &args.remaps {
+        ros_args.push("-r".into());
+        ros_args.push(r.clone());
+    }
+    let names = Names::new("angle_i2p_player", &RosArgs::parse(&ros_args)?);
+
+    let context = dds::context()?;
+    let mut node = dds::node(&context, "/", &format!("angle_i2p_player_{}", std::process::id()))?;
+    let _spinner = dds::spawn_spinner(&mut node)?;
+
+    let mut report = PlayReport::default();
+    // Publishers by bag topic.
+    let mut publishers: std::collections::HashMap<String, (String, Box<dyn CdrPublisher>)> = Default::default();
+    for ch in reader.channels() {
+        if !args.topics.is_empty() && !args.topics.contains(&ch.topic) {
+            continue;
+        }
+        if publishers.contains_key(&ch.topic) {
+            continue;
+        }
+        let out_topic = names.resolve(&ch.topic);
+        match make_publisher(&mut node, &ch.type_name, &out_topic)? {
+            Some(p) => {
+                publishers.insert(ch.topic.clone(), (out_topic, p));
+            }
+            None => report.skipped_topics.push(format!("{} ({})", ch.topic, ch.type_name)),
+        }
+    }
+    if publishers.is_empty() {
+        bail!("{}: nothing to publish", args.bag.display());
+    }
+
+    // Wait for subscribers (bounded).
+    let deadline = Instant::now() + Duration::from_secs_f64(args.wait_timeout.max(0.0));
+    for topic in &args.wait_for {
+        let Some((_, p)) = publishers.iter().find(|(t, (out, _))| *t == topic || out == topic).map(|(_, v)| v) else {
+            eprintln!("[play] --wait-for {topic}: not a topic of this bag; not waiting");
+            continue;
+        };
+        while p.subscriptions(&node) == 0 {
+            if Instant::now() >= deadline {
+                eprintln!("[play] no subscriber on {topic} after {} s; playing anyway", args.wait_timeout);
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+    if !args.wait_for.is_empty() {
+        // Let the just-matched readers finish their handshake (reliable heartbeats).
+        std::thread::sleep(Duration::from_millis(300));
+    }
+
+    let messages = reader.messages();
+    let Some(first) = messages.first().map(|m| m.log_time) else {
+        bail!("{}: the bag has no messages", args.bag.display());
+    };
+    let start = Instant::now();
+    let mut pass_start = start;
+    loop {
+        report.loops += 1;
+        for m in messages {
+            let Some((topic, p)) = publishers.get(m.topic()) else {
+                continue;
+            };
+            let offset = Duration::from_secs_f64(m.log_time.saturating_sub(first) as f64 / 1e9 / args.rate);
+            let due = pass_start + offset;
+            let now = Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            }
+            match p.publish_cdr(&m.data) {
+                Ok(()) => report.published += 1,
+                Err(e) => {
+                    report.failed += 1;
+                    eprintln!("[play] {topic} at log time {}: {e}", m.log_time);
+                }
+            }
+        }
+        if !args.loop_ {
+            break;
+        }
+        pass_start = Instant::now();
+    }
+    report.seconds = start.elapsed().as_secs_f64();
+    std::thread::sleep(Duration::from_secs_f64(args.linger.max(0.0)));
+    node.stop_spinner();
+    Ok(report)
+}
