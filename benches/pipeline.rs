@@ -17,7 +17,8 @@ use angle_i2p::synth::{generate, SynthConfig};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 
 fn frames(n: usize) -> Vec<angle_i2p::frame::Frame> {
-    let config = SynthConfig { frames: 3, correspondences: n, seed: 42, ..SynthConfig::preset("hard").expect("preset") };
+    let config =
+        SynthConfig { frames: 3, correspondences: n, seed: 42, ..SynthConfig::preset("hard").expect("preset") };
     generate(&config).frames
 }
 

@@ -45,11 +45,21 @@ pub fn replay(
     }
     for missing in &incomplete {
         if missing.dropped {
-            write_diagnostics(&mut writer, missing.stamp, localizer.params().method.name(), &[], Some(&describe(missing)))?;
+            write_diagnostics(
+                &mut writer,
+                missing.stamp,
+                localizer.params().method.name(),
+                &[],
+                Some(&describe(missing)),
+            )?;
         }
     }
     writer.finish()?;
-    Ok(ReplayReport { localizations, incomplete, issues: issues.iter().map(|i| format!("{}: {}", i.topic, i.reason)).collect() })
+    Ok(ReplayReport {
+        localizations,
+        incomplete,
+        issues: issues.iter().map(|i| format!("{}: {}", i.topic, i.reason)).collect(),
+    })
 }
 
 pub fn describe(f: &IncompleteFrame) -> String {
@@ -66,7 +76,11 @@ fn write_localization(w: &mut BagWriter, topics: &TopicMap, loc: &Localization) 
     if let Some(pose) = &loc.pose {
         w.write(&topics.pose, t, &convert::pose_stamped(t, &loc.map_frame_id, pose))?;
         if let Some(cov) = &loc.covariance {
-            w.write(&topics.pose_with_covariance, t, &convert::pose_with_covariance_stamped(t, &loc.map_frame_id, pose, cov))?;
+            w.write(
+                &topics.pose_with_covariance,
+                t,
+                &convert::pose_with_covariance_stamped(t, &loc.map_frame_id, pose, cov),
+            )?;
         }
     }
     let kept = convert::correspondences_msg(t, &loc.camera_frame_id, &loc.map_frame_id, &loc.kept);
@@ -84,7 +98,13 @@ fn write_localization(w: &mut BagWriter, topics: &TopicMap, loc: &Localization) 
     write_diagnostics(w, t, loc.method.name(), &values, failure.as_deref())
 }
 
-fn write_diagnostics(w: &mut BagWriter, stamp: Stamp, method: &str, values: &[(&str, String)], failure: Option<&str>) -> Result<()> {
+fn write_diagnostics(
+    w: &mut BagWriter,
+    stamp: Stamp,
+    method: &str,
+    values: &[(&str, String)],
+    failure: Option<&str>,
+) -> Result<()> {
     let mut kv = vec![KeyValue { key: "method".into(), value: method.into() }];
     kv.extend(values.iter().map(|(k, v)| KeyValue { key: (*k).into(), value: v.clone() }));
     let status = DiagnosticStatus {
@@ -156,7 +176,11 @@ pub fn evaluate(input: &BagFrames, est: &Path, topics: &TopicMap) -> Result<Eval
         });
     }
     anyhow::ensure!(!rows.is_empty(), "{}: no frame with ground-truth pose and depth to score against", "input bag");
-    Ok(Evaluation { method: method.unwrap_or_else(|| est.display().to_string()), summary: summarize(&rows), frames: rows })
+    Ok(Evaluation {
+        method: method.unwrap_or_else(|| est.display().to_string()),
+        summary: summarize(&rows),
+        frames: rows,
+    })
 }
 
 /// The inlier ratio of the matcher's raw correspondences (the input's IR).

@@ -76,7 +76,11 @@ fn centred_unit_vectors(points: &[Point3<f64>], weights: Option<&[f64]>) -> Vec<
         .map(|p| {
             let v = p - c;
             let norm = v.norm();
-            if norm > 1e-12 { (v / norm).cast::<f32>() } else { Vector3::zeros() }
+            if norm > 1e-12 {
+                (v / norm).cast::<f32>()
+            } else {
+                Vector3::zeros()
+            }
         })
         .collect()
 }
@@ -89,7 +93,11 @@ fn weighted_centroid(points: &[Point3<f64>], weights: Option<&[f64]>) -> Point3<
         sum += p.coords * w;
         total += w;
     }
-    if total > 0.0 { Point3::from(sum / total) } else { Point3::origin() }
+    if total > 0.0 {
+        Point3::from(sum / total)
+    } else {
+        Point3::origin()
+    }
 }
 
 /// Distance-based spatial consistency: θ_ij = [1 − (|‖o_i − o_j‖ − ‖q_i − q_j‖| / σ_ij)²]₊
@@ -237,7 +245,8 @@ pub fn estimate_scale_shift(
     if n < 3 {
         return None;
     }
-    let mut pairs: Vec<(u32, u32)> = local_pairs.iter().copied().filter(|&(i, j)| i != j && (i as usize) < n && (j as usize) < n).collect();
+    let mut pairs: Vec<(u32, u32)> =
+        local_pairs.iter().copied().filter(|&(i, j)| i != j && (i as usize) < n && (j as usize) < n).collect();
     let mut rng = SplitMix64(params.seed);
     for _ in 0..params.global_pairs {
         let i = rng.below(n) as u32;
@@ -415,7 +424,8 @@ impl ScaleVotes {
                 best_start = start;
             }
         }
-        (best > 0).then(|| (best as usize, (best_start as f64 + self.window as f64 / 2.0) * self.bin_width - Self::LOG_RANGE))
+        (best > 0)
+            .then(|| (best as usize, (best_start as f64 + self.window as f64 / 2.0) * self.bin_width - Self::LOG_RANGE))
     }
 }
 
@@ -482,7 +492,8 @@ mod tests {
         let image: Vec<_> = map.iter().map(|p| pose().inverse_transform_point(p)).collect();
         let mut m = ConsistencyMatrix::default();
         angle_consistency(&image, &map, None, 0.1, &mut m);
-        let off_diag: f32 = (0..40).flat_map(|i| (0..40).filter(move |&j| j != i).map(move |j| (i, j))).map(|(i, j)| m.get(i, j)).sum();
+        let off_diag: f32 =
+            (0..40).flat_map(|i| (0..40).filter(move |&j| j != i).map(move |j| (i, j))).map(|(i, j)| m.get(i, j)).sum();
         assert!((off_diag / (40.0 * 39.0) - 1.0).abs() < 1e-4);
         let mut shuffled = image.clone();
         shuffled.reverse();

@@ -199,7 +199,8 @@ mod tests {
     #[test]
     fn identical_poses_have_zero_error_and_register() {
         let depth = DepthImage::new(64, 48, vec![2.0; 64 * 48]);
-        let pose = Isometry3::from_parts(Translation3::new(1.0, 2.0, 3.0), UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3));
+        let pose =
+            Isometry3::from_parts(Translation3::new(1.0, 2.0, 3.0), UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3));
         let e = pose_errors(&pose, &pose, &k(), &depth);
         assert!(e.rotation_deg < 1e-6 && e.translation_m < 1e-12 && e.rmse_m < 1e-12);
     }

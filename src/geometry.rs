@@ -96,7 +96,9 @@ impl DepthImage {
         let (ax, ay) = (x - x0 as f64, y - y0 as f64);
         let mut sum = 0.0;
         let mut weight = 0.0;
-        for (du, dv, w) in [(0, 0, (1.0 - ax) * (1.0 - ay)), (1, 0, ax * (1.0 - ay)), (0, 1, (1.0 - ax) * ay), (1, 1, ax * ay)] {
+        for (du, dv, w) in
+            [(0, 0, (1.0 - ax) * (1.0 - ay)), (1, 0, ax * (1.0 - ay)), (0, 1, (1.0 - ax) * ay), (1, 1, ax * ay)]
+        {
             if let Some(d) = self.at(x0 + du, y0 + dv) {
                 sum += w * d as f64;
                 weight += w;

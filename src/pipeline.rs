@@ -48,7 +48,14 @@ pub struct FinalRefine {
 
 impl Default for FinalRefine {
     fn default() -> Self {
-        Self { enabled: true, threshold_px: 4.0, threshold_m: 0.03, loss: RobustLoss::Trivial, loss_scale_px: 4.0, max_iterations: 20 }
+        Self {
+            enabled: true,
+            threshold_px: 4.0,
+            threshold_m: 0.03,
+            loss: RobustLoss::Trivial,
+            loss_scale_px: 4.0,
+            max_iterations: 20,
+        }
     }
 }
 
@@ -185,8 +192,14 @@ impl Localizer {
         let pixels: Vec<_> = subset.iter().map(|&i| frame.correspondences[i].pixel).collect();
         let points: Vec<_> = subset.iter().map(|&i| frame.correspondences[i].point).collect();
         let scores: Option<Vec<f32>> = rejection.as_ref().map(|r| subset.iter().map(|&i| r.scores[i]).collect());
-        let solved =
-            solve_pnp_ransac(&frame.intrinsics, &pixels, &points, scores.as_deref(), &self.params.pnp, self.params.seed);
+        let solved = solve_pnp_ransac(
+            &frame.intrinsics,
+            &pixels,
+            &points,
+            scores.as_deref(),
+            &self.params.pnp,
+            self.params.seed,
+        );
         out.timings.pnp_ms = ms_since(t);
         match solved {
             Ok(mut solution) => {

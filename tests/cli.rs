@@ -10,7 +10,9 @@ use common::{binary, manifest, python, run_ok, shared_bag, skip_or_fail};
 fn synth_replay_eval_round_trip() {
     let dir = tempfile::tempdir().unwrap();
     let (bag, out_r, out_c) = (dir.path().join("in"), dir.path().join("ransac"), dir.path().join("consistency"));
-    run_ok(Command::new(binary()).args(["synth", "--preset", "hard", "--frames", "4", "--seed", "9", "--out"]).arg(&bag));
+    run_ok(
+        Command::new(binary()).args(["synth", "--preset", "hard", "--frames", "4", "--seed", "9", "--out"]).arg(&bag),
+    );
     for (m, out) in [("ransac", &out_r), ("consistency", &out_c)] {
         let text = run_ok(Command::new(binary()).arg("replay").arg(&bag).arg("--out").arg(out).args(["--method", m]));
         assert!(text.contains("4 frames"), "{text}");
@@ -59,9 +61,10 @@ fn eval_agrees_with_the_reference_evaluator() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     run_ok(Command::new(binary()).arg("replay").arg(&bag).arg("--out").arg(&out));
-    let ours: serde_json::Value =
-        serde_json::from_str(&run_ok(Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&out).arg("--json")))
-            .unwrap();
+    let ours: serde_json::Value = serde_json::from_str(&run_ok(
+        Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&out).arg("--json"),
+    ))
+    .unwrap();
     let ours = &ours["consistency"];
     let theirs: serde_json::Value =
         serde_json::from_str(&run_ok(Command::new(py).arg(&tool).arg(&bag).arg("--est").arg(&out))).unwrap();

@@ -9,7 +9,9 @@
 use super::lm::{check_basic, finite_pairs, Cam};
 use super::{MapToCamera, PnpError};
 use crate::geometry::Intrinsics;
-use nalgebra::{Isometry3, Matrix3, Matrix4, Point2, Point3, SMatrix, SVector, SymmetricEigen, Vector2, Vector3, Vector4};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix4, Point2, Point3, SMatrix, SVector, SymmetricEigen, Vector2, Vector3, Vector4,
+};
 
 type M12 = SMatrix<f64, 12, 12>;
 type V12 = SVector<f64, 12>;
@@ -51,7 +53,8 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
     if !cov.iter().all(|v| v.is_finite()) {
         return Err(PnpError::Degenerate("map point spread overflows"));
     }
-    let eig = SymmetricEigen::try_new(cov, f64::EPSILON, 1000).ok_or(PnpError::Degenerate("eigen decomposition failed"))?;
+    let eig =
+        SymmetricEigen::try_new(cov, f64::EPSILON, 1000).ok_or(PnpError::Degenerate("eigen decomposition failed"))?;
     let lmax = eig.eigenvalues.amax();
     if !(lmax.is_finite() && lmax > 0.0) || eig.eigenvalues.min() <= 1e-10 * lmax {
         return Err(PnpError::Degenerate("map points are planar or collinear"));
@@ -87,7 +90,8 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
     if !mtm.iter().all(|v| v.is_finite()) {
         return Err(PnpError::Degenerate("EPnP system is not finite"));
     }
-    let eig12 = SymmetricEigen::try_new(mtm, f64::EPSILON, 1000).ok_or(PnpError::Degenerate("eigen decomposition failed"))?;
+    let eig12 =
+        SymmetricEigen::try_new(mtm, f64::EPSILON, 1000).ok_or(PnpError::Degenerate("eigen decomposition failed"))?;
     let mut order: [usize; 12] = std::array::from_fn(|i| i);
     order.sort_by(|&a, &b| eig12.eigenvalues[a].total_cmp(&eig12.eigenvalues[b]));
     let v: [V12; 4] = std::array::from_fn(|k| eig12.eigenvectors.column(order[k]).into_owned());
@@ -98,7 +102,11 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
     let mut rho = [0.0; 6];
     for (p, &(a, b)) in PAIRS.iter().enumerate() {
         let dv: [Vector3<f64>; 4] = std::array::from_fn(|k| {
-            Vector3::new(v[k][3 * a] - v[k][3 * b], v[k][3 * a + 1] - v[k][3 * b + 1], v[k][3 * a + 2] - v[k][3 * b + 2])
+            Vector3::new(
+                v[k][3 * a] - v[k][3 * b],
+                v[k][3 * a + 1] - v[k][3 * b + 1],
+                v[k][3 * a + 2] - v[k][3 * b + 2],
+            )
         });
         for k in 0..4 {
             for l in 0..4 {
@@ -215,10 +223,15 @@ fn gauss_newton_betas(mut b: Vector4<f64>, q: &[Matrix4<f64>; 6], rho: &[f64; 6]
 
 /// EPnP on all finite correspondences (≥ 4, non-planar map points), no refinement. Returns the
 /// camera-to-map pose. See [`super::solve_pnp_nonminimal`] for EPnP + LM.
-pub fn epnp(intrinsics: &Intrinsics, pixels: &[Point2<f64>], points: &[Point3<f64>]) -> Result<Isometry3<f64>, PnpError> {
+pub fn epnp(
+    intrinsics: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+) -> Result<Isometry3<f64>, PnpError> {
     check_basic(intrinsics, pixels.len(), points.len())?;
     let (px, pw, _) = finite_pairs(pixels, points);
     let cam = Cam::new(intrinsics);
-    let uv: Vec<Vector2<f64>> = px.iter().map(|p| Vector2::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy)).collect();
+    let uv: Vec<Vector2<f64>> =
+        px.iter().map(|p| Vector2::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy)).collect();
     Ok(epnp_normalized(&uv, &pw)?.to_camera_to_map())
 }

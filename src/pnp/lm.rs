@@ -105,7 +105,14 @@ fn behind_penalty(loss: &Loss) -> f64 {
     loss.eval(1e8).0
 }
 
-fn linearize(cam: &Cam, px: &[Vector2<f64>], pw: &[Vector3<f64>], idx: &[usize], pose: &MapToCamera, loss: &Loss) -> Linearization {
+fn linearize(
+    cam: &Cam,
+    px: &[Vector2<f64>],
+    pw: &[Vector3<f64>],
+    idx: &[usize],
+    pose: &MapToCamera,
+    loss: &Loss,
+) -> Linearization {
     let mut cost = 0.0;
     let mut h = Matrix6::zeros();
     let mut g = Vector6::zeros();
@@ -188,7 +195,13 @@ pub(crate) fn lm_refine(
 /// Gauss–Newton covariance of the camera-to-map pose over the points `idx`, order
 /// `(x, y, z, rot x, rot y, rot z)`: `σ²·(JᵀJ)⁻¹` with `σ² = Σ|r|² / (2n − 6)`.
 /// `None` with fewer than 4 points in front of the camera.
-pub(crate) fn covariance(cam: &Cam, px: &[Vector2<f64>], pw: &[Vector3<f64>], idx: &[usize], pose: &MapToCamera) -> Option<Matrix6<f64>> {
+pub(crate) fn covariance(
+    cam: &Cam,
+    px: &[Vector2<f64>],
+    pw: &[Vector3<f64>],
+    idx: &[usize],
+    pose: &MapToCamera,
+) -> Option<Matrix6<f64>> {
     let r = pose.rotation;
     let mut h = Matrix6::zeros();
     let mut sq = 0.0;
@@ -261,7 +274,10 @@ pub struct RefineResult {
 }
 
 /// Validated compact copies of the finite correspondences.
-pub(crate) fn finite_pairs(pixels: &[Point2<f64>], points: &[Point3<f64>]) -> (Vec<Vector2<f64>>, Vec<Vector3<f64>>, Vec<usize>) {
+pub(crate) fn finite_pairs(
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+) -> (Vec<Vector2<f64>>, Vec<Vector3<f64>>, Vec<usize>) {
     let mut px = Vec::with_capacity(pixels.len());
     let mut pw = Vec::with_capacity(pixels.len());
     let mut orig = Vec::with_capacity(pixels.len());
@@ -343,5 +359,6 @@ pub fn pose_covariance(
     let (px, pw, _) = finite_pairs(pixels, points);
     let idx: Vec<usize> = (0..px.len()).collect();
     let m2c = MapToCamera::from_camera_to_map(pose);
-    covariance(&Cam::new(intrinsics), &px, &pw, &idx, &m2c).ok_or(PnpError::TooFewPoints { usable: px.len(), required: 4 })
+    covariance(&Cam::new(intrinsics), &px, &pw, &idx, &m2c)
+        .ok_or(PnpError::TooFewPoints { usable: px.len(), required: 4 })
 }

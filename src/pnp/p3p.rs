@@ -137,7 +137,13 @@ fn quad(m: &Matrix3<f64>, u: &Vector3<f64>, v: &Vector3<f64>) -> f64 {
 /// Any unit vector orthogonal to unit `n`.
 #[inline(always)]
 fn orthogonal(n: &Vector3<f64>) -> Vector3<f64> {
-    let a = if n.x.abs() < 0.6 { Vector3::x() } else if n.y.abs() < 0.6 { Vector3::y() } else { Vector3::z() };
+    let a = if n.x.abs() < 0.6 {
+        Vector3::x()
+    } else if n.y.abs() < 0.6 {
+        Vector3::y()
+    } else {
+        Vector3::z()
+    };
     (a - n * n.dot(&a)).normalize()
 }
 
@@ -159,7 +165,8 @@ pub(crate) fn p3p_unit(y: &[Vector3<f64>; 3], x: &[Vector3<f64>; 3]) -> P3pSolut
     let (a12, a13, a23) = (d12.norm_squared(), d13.norm_squared(), d23.norm_squared());
     let amax = a12.max(a13).max(a23);
     // Coincident or collinear map points (sin of the angle below ~1e-5), or non-finite input.
-    if !(amax.is_finite() && a12.min(a13).min(a23) > 1e-12 * amax) || d12.cross(&d13).norm_squared() <= 1e-10 * a12 * a13
+    if !(amax.is_finite() && a12.min(a13).min(a23) > 1e-12 * amax)
+        || d12.cross(&d13).norm_squared() <= 1e-10 * a12 * a13
     {
         return out;
     }

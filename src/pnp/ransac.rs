@@ -6,7 +6,10 @@
 //! positions. Nothing is allocated inside the sampling loop.
 
 use super::epnp::epnp_normalized;
-use super::lm::{check_basic, covariance, finite_pairs, lm_refine, refine_all, reproj_err2, Cam, Loss, RefineOptions, RefineResult, MIN_DEPTH};
+use super::lm::{
+    check_basic, covariance, finite_pairs, lm_refine, refine_all, reproj_err2, Cam, Loss, RefineOptions, RefineResult,
+    MIN_DEPTH,
+};
 use super::p3p::p3p_unit;
 use super::rng::WyRand;
 use super::{MapToCamera, PnpError, PnpParams, PnpSolution, RobustLoss};
@@ -260,7 +263,8 @@ fn check_spread(pw: &[Vector3<f64>]) -> Result<(), PnpError> {
     if !cov.iter().all(|v| v.is_finite()) {
         return Err(PnpError::Degenerate("map point spread overflows"));
     }
-    let eig = SymmetricEigen::try_new(cov, f64::EPSILON, 1000).ok_or(PnpError::Degenerate("eigen decomposition failed"))?;
+    let eig =
+        SymmetricEigen::try_new(cov, f64::EPSILON, 1000).ok_or(PnpError::Degenerate("eigen decomposition failed"))?;
     let mut ev: Vec<f64> = eig.eigenvalues.iter().copied().collect();
     ev.sort_by(|a, b| b.total_cmp(a));
     if !(ev[0].is_finite() && ev[0] > 0.0) {
@@ -327,7 +331,11 @@ pub fn solve_pnp_ransac(
     let pos_of_rank: Option<Vec<usize>> = scores.map(|s| {
         let key = |pos: usize| {
             let v = s[orig[pos]];
-            if v.is_nan() { f32::NEG_INFINITY } else { v }
+            if v.is_nan() {
+                f32::NEG_INFINITY
+            } else {
+                v
+            }
         };
         let mut ranks: Vec<usize> = (0..n).collect();
         ranks.sort_by(|&a, &b| key(b).total_cmp(&key(a)).then(orig[a].cmp(&orig[b])));
@@ -355,7 +363,8 @@ pub fn solve_pnp_ransac(
             }
             _ => distinct3(&mut rng, n),
         };
-        let sols = p3p_unit(&[bearings[s[0]], bearings[s[1]], bearings[s[2]]], &[data.pw[s[0]], data.pw[s[1]], data.pw[s[2]]]);
+        let sols =
+            p3p_unit(&[bearings[s[0]], bearings[s[1]], bearings[s[2]]], &[data.pw[s[0]], data.pw[s[1]], data.pw[s[2]]]);
         let mut improved = false;
         let start = if sols.is_empty() { 0 } else { rng.below(n) };
         for pose in sols.iter() {
@@ -428,7 +437,8 @@ pub fn solve_pnp_ransac(
     }
     let sq: f64 = idx_buf.iter().map(|&i| reproj_err2(&cam, &pose, &data.pw[i], &data.px[i])).sum();
     let rmse_px = (sq / num_inliers as f64).sqrt();
-    let cov = covariance(&cam, &data.px, &data.pw, &idx_buf, &pose).ok_or(PnpError::Degenerate("pose covariance is not finite"))?;
+    let cov = covariance(&cam, &data.px, &data.pw, &idx_buf, &pose)
+        .ok_or(PnpError::Degenerate("pose covariance is not finite"))?;
     let mut inliers = vec![false; pixels.len()];
     for &i in &idx_buf {
         inliers[orig[i]] = true;
@@ -473,7 +483,8 @@ pub fn solve_pnp_nonminimal(
         return Err(PnpError::TooFewPoints { usable: px.len(), required: 4 });
     }
     let cam = Cam::new(intrinsics);
-    let uv: Vec<Vector2<f64>> = px.iter().map(|p| Vector2::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy)).collect();
+    let uv: Vec<Vector2<f64>> =
+        px.iter().map(|p| Vector2::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy)).collect();
     let init = epnp_normalized(&uv, &pw)?;
     Ok(refine_all(&cam, &px, &pw, init, options))
 }

@@ -222,8 +222,10 @@ fn prosac_needs_fewer_iterations_when_scores_rank_inliers_high() {
         let (pose, px, pw, truth) = scenario(200 + seed, 1000, 0.85);
         let mut rng = WyRand::new(seed);
         // Inliers score higher on average, with overlap.
-        let scores: Vec<f32> =
-            truth.iter().map(|&t| if t { uniform(&mut rng, 0.4, 1.0) } else { uniform(&mut rng, 0.0, 0.7) } as f32).collect();
+        let scores: Vec<f32> = truth
+            .iter()
+            .map(|&t| if t { uniform(&mut rng, 0.4, 1.0) } else { uniform(&mut rng, 0.0, 0.7) } as f32)
+            .collect();
         let params = PnpParams::default();
         let u = solve_pnp_ransac(&k(), &px, &pw, None, &params, seed).unwrap();
         let p = solve_pnp_ransac(&k(), &px, &pw, Some(&scores), &params, seed).unwrap();
@@ -281,14 +283,19 @@ fn degenerate_and_invalid_inputs_are_errors() {
     let bad = Intrinsics { fx: f64::NAN, ..intr };
     assert_eq!(solve_pnp_ransac(&bad, &px, &pw, None, &params, 0), Err(PnpError::InvalidIntrinsics));
     assert!(matches!(solve_pnp_ransac(&intr, &px[..10], &pw, None, &params, 0), Err(PnpError::LengthMismatch { .. })));
-    assert!(matches!(solve_pnp_ransac(&intr, &px, &pw, Some(&[1.0; 3]), &params, 0), Err(PnpError::LengthMismatch { .. })));
+    assert!(matches!(
+        solve_pnp_ransac(&intr, &px, &pw, Some(&[1.0; 3]), &params, 0),
+        Err(PnpError::LengthMismatch { .. })
+    ));
     let p = PnpParams { threshold_px: f64::NAN, ..params.clone() };
     assert!(matches!(solve_pnp_ransac(&intr, &px, &pw, None, &p, 0), Err(PnpError::InvalidParams(_))));
     // Pure outliers: no consensus (or, by chance, a tiny one), never a panic.
     let mut rng = WyRand::new(3);
-    let rnd_px: Vec<Point2<f64>> = (0..100).map(|_| Point2::new(uniform(&mut rng, 0.0, 640.0), uniform(&mut rng, 0.0, 480.0))).collect();
-    let rnd_pw: Vec<Point3<f64>> =
-        (0..100).map(|_| Point3::new(uniform(&mut rng, -5.0, 5.0), uniform(&mut rng, -5.0, 5.0), uniform(&mut rng, 1.0, 9.0))).collect();
+    let rnd_px: Vec<Point2<f64>> =
+        (0..100).map(|_| Point2::new(uniform(&mut rng, 0.0, 640.0), uniform(&mut rng, 0.0, 480.0))).collect();
+    let rnd_pw: Vec<Point3<f64>> = (0..100)
+        .map(|_| Point3::new(uniform(&mut rng, -5.0, 5.0), uniform(&mut rng, -5.0, 5.0), uniform(&mut rng, 1.0, 9.0)))
+        .collect();
     let strict = PnpParams { min_inliers: 20, ..params.clone() };
     assert!(matches!(solve_pnp_ransac(&intr, &rnd_px, &rnd_pw, None, &strict, 0), Err(PnpError::NoConsensus { .. })));
 }
@@ -340,7 +347,8 @@ fn covariance_matches_monte_carlo_spread() {
     let mut predicted = nalgebra::Matrix6::zeros();
     let runs = 200;
     for _ in 0..runs {
-        let px: Vec<Point2<f64>> = clean.iter().map(|p| Point2::new(p.x + normal(&mut rng), p.y + normal(&mut rng))).collect();
+        let px: Vec<Point2<f64>> =
+            clean.iter().map(|p| Point2::new(p.x + normal(&mut rng), p.y + normal(&mut rng))).collect();
         let s = solve_pnp_nonminimal(&k(), &px, &pw, &RefineOptions::default()).unwrap();
         predicted += pose_covariance(&k(), &px, &pw, &s.pose).unwrap() / runs as f64;
         let d = s.pose.translation.vector - pose.translation.vector;
@@ -426,7 +434,8 @@ fn extreme_values_do_not_panic() {
     let _ = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams::default(), 0);
     let _ = solve_pnp_nonminimal(&intr, &px, &pw, &RefineOptions::default());
     let _ = epnp(&intr, &px, &pw);
-    let huge: Vec<Point3<f64>> = (0..20).map(|i| Point3::new(1e200 * i as f64, 1e199 * (i * i) as f64, 1e200)).collect();
+    let huge: Vec<Point3<f64>> =
+        (0..20).map(|i| Point3::new(1e200 * i as f64, 1e199 * (i * i) as f64, 1e200)).collect();
     let hp: Vec<Point2<f64>> = (0..20).map(|i| Point2::new(i as f64, (i * 7 % 13) as f64)).collect();
     assert!(solve_pnp_ransac(&intr, &hp, &huge, None, &PnpParams::default(), 0).is_err());
     let _ = solve_pnp_nonminimal(&intr, &hp, &huge, &RefineOptions::default());

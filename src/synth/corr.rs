@@ -93,8 +93,9 @@ pub(crate) fn correspondences(inp: &CorrInputs, rng: &mut StdRng) -> Generated {
     // 1. Pixels with their true surface points; each must be able to be a ground-truth
     //    inlier (keeps pixels off depth edges and grazing spots where noise breaks the test).
     //    Keypoints crowd feature-rich spots: a share of them comes from a few blobs.
-    let blobs: Vec<Point2<f64>> =
-        (0..c.keypoint_blobs).map(|_| Point2::new(rng.random::<f64>() * (w - 1.0), rng.random::<f64>() * (h - 1.0))).collect();
+    let blobs: Vec<Point2<f64>> = (0..c.keypoint_blobs)
+        .map(|_| Point2::new(rng.random::<f64>() * (w - 1.0), rng.random::<f64>() * (h - 1.0)))
+        .collect();
     let blob_sigma = 0.08 * w.min(h);
     let mut cands: Vec<Candidate> = Vec::with_capacity(c.correspondences);
     for _ in 0..c.correspondences {
@@ -189,7 +190,9 @@ pub(crate) fn correspondences(inp: &CorrInputs, rng: &mut StdRng) -> Generated {
                 let dir = gaussian3(rng, 1.0);
                 let dir = if dir.norm() > 1e-9 { dir.normalize() } else { Vector3::x() };
                 cand.inlier_point + dir * (0.08 + 0.22 * rng.random::<f64>())
-            } else if !visible.is_empty() && (inp.map.points.is_empty() || rng.random::<f64>() < c.visible_outlier_fraction) {
+            } else if !visible.is_empty()
+                && (inp.map.points.is_empty() || rng.random::<f64>() < c.visible_outlier_fraction)
+            {
                 inp.render.points[visible[pick(rng, visible.len())]] + gaussian3(rng, c.map_noise_m)
             } else if !inp.map.points.is_empty() {
                 inp.map.points[pick(rng, inp.map.points.len())].cast::<f64>() + gaussian3(rng, c.map_noise_m)

@@ -159,8 +159,12 @@ impl SynthConfig {
         let base = SynthConfig::default();
         match name.trim().to_ascii_lowercase().as_str() {
             "sift" => Some(base),
-            "hard" => Some(SynthConfig { correspondences: 400, inlier_ratio: 0.15, patch_outlier_fraction: 0.5, ..base }),
-            "extreme" => Some(SynthConfig { correspondences: 300, inlier_ratio: 0.06, patch_outlier_fraction: 0.75, ..base }),
+            "hard" => {
+                Some(SynthConfig { correspondences: 400, inlier_ratio: 0.15, patch_outlier_fraction: 0.5, ..base })
+            }
+            "extreme" => {
+                Some(SynthConfig { correspondences: 300, inlier_ratio: 0.06, patch_outlier_fraction: 0.75, ..base })
+            }
             _ => None,
         }
     }
@@ -390,8 +394,11 @@ fn gaussian3(rng: &mut StdRng, sigma: f64) -> Vector3<f64> {
     if sigma <= 0.0 {
         return Vector3::zeros();
     }
-    Vector3::new(rng.sample::<f64, _>(StandardNormal), rng.sample::<f64, _>(StandardNormal), rng.sample::<f64, _>(StandardNormal))
-        * sigma
+    Vector3::new(
+        rng.sample::<f64, _>(StandardNormal),
+        rng.sample::<f64, _>(StandardNormal),
+        rng.sample::<f64, _>(StandardNormal),
+    ) * sigma
 }
 
 /// A smooth loop about the room centre, looking outward with a little pitch and roll.
@@ -410,7 +417,12 @@ impl CameraPath {
             centre: Point3::new(scene.size.x / 2.0, scene.size.y / 2.0, config.camera_height_m),
             radius: config.path_radius_m,
             phase: rng.random::<f64>() * tau,
-            wobble: [rng.random::<f64>() * tau, rng.random::<f64>() * tau, rng.random::<f64>() * tau, rng.random::<f64>() * tau],
+            wobble: [
+                rng.random::<f64>() * tau,
+                rng.random::<f64>() * tau,
+                rng.random::<f64>() * tau,
+                rng.random::<f64>() * tau,
+            ],
             frames: config.frames.max(1),
         }
     }
@@ -419,7 +431,8 @@ impl CameraPath {
     fn pose(&self, k: usize) -> Isometry3<f64> {
         let phi = self.phase + std::f64::consts::TAU * k as f64 / self.frames as f64;
         let [a, b, c, d] = self.wobble;
-        let position = self.centre + Vector3::new(self.radius * phi.cos(), self.radius * phi.sin(), 0.08 * (2.0 * phi + a).sin());
+        let position =
+            self.centre + Vector3::new(self.radius * phi.cos(), self.radius * phi.sin(), 0.08 * (2.0 * phi + a).sin());
         let yaw = phi + 0.35 * (3.0 * phi + b).sin();
         let pitch = -0.2 + 0.1 * (2.0 * phi + c).sin();
         let roll = 0.05 * (5.0 * phi + d).sin();
@@ -453,8 +466,9 @@ pub(crate) struct Render {
 impl FrameContext<'_> {
     fn frame(&self, k: usize) -> (Frame, FrameStats) {
         let c = self.config;
-        let mut rng =
-            StdRng::seed_from_u64(scene::mix64(c.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ scene::mix64(k as u64 + 1)));
+        let mut rng = StdRng::seed_from_u64(scene::mix64(
+            c.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ scene::mix64(k as u64 + 1),
+        ));
         let intrinsics = c.intrinsics();
         let pose = self.path.pose(k);
         let stamp = FIRST_STAMP + (k as i64 + 1) * 100_000_000;
@@ -492,7 +506,8 @@ impl FrameContext<'_> {
         let prior = depth_prior(&render.depth, &params, &mut rng);
         let image = encode_jpeg(&render.rgb, c.width, c.height, c.jpeg_quality);
 
-        let mut depths: Vec<f64> = render.depth.data.iter().filter(|d| d.is_finite() && **d > 0.0).map(|&d| d as f64).collect();
+        let mut depths: Vec<f64> =
+            render.depth.data.iter().filter(|d| d.is_finite() && **d > 0.0).map(|&d| d as f64).collect();
         depths.sort_by(|a, b| a.total_cmp(b));
         let min_depth = depths.first().copied().unwrap_or(0.0);
         let median_depth = depths.get(depths.len() / 2).copied().unwrap_or(0.0);
@@ -539,8 +554,11 @@ impl FrameContext<'_> {
             for u in 0..w {
                 let i = v * w + u;
                 // Camera-frame direction with z = 1, so the time of impact is the z-depth.
-                let d_cam =
-                    Vector3::new((u as f64 - intrinsics.cx) / intrinsics.fx, (v as f64 - intrinsics.cy) / intrinsics.fy, 1.0);
+                let d_cam = Vector3::new(
+                    (u as f64 - intrinsics.cx) / intrinsics.fx,
+                    (v as f64 - intrinsics.cy) / intrinsics.fy,
+                    1.0,
+                );
                 let dir = rot * d_cam;
                 let Some(hit) = self.scene.cast(&origin, &dir) else { continue };
                 let p = origin + dir * hit.toi;
@@ -548,7 +566,8 @@ impl FrameContext<'_> {
                 points[i] = p;
                 let col = self.scene.shade(&p, &hit, &origin);
                 // Linear → sRGB-ish gamma, plus a little deterministic sensor noise.
-                let noise = (scene::mix64((i as u64) ^ self.scene.texture_seed ^ (self.config.seed << 20)) % 7) as f64 - 3.0;
+                let noise =
+                    (scene::mix64((i as u64) ^ self.scene.texture_seed ^ (self.config.seed << 20)) % 7) as f64 - 3.0;
                 for ch in 0..3 {
                     rgb[i * 3 + ch] = (col[ch].powf(1.0 / 2.2) * 255.0 + noise).round().clamp(0.0, 255.0) as u8;
                 }

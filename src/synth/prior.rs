@@ -217,8 +217,11 @@ pub fn depth_prior(depth: &DepthImage, params: &PriorParams, rng: &mut StdRng) -
     let field = bicubic_resize(&grid, dw, dh);
     let max_abs = field.data.iter().fold(1e-6_f64, |m, v| m.max(v.abs()));
     let amp = params.warp_amplitude.max(0.0);
-    let warped =
-        Grid { w: dw, h: dh, data: small.data.iter().zip(&field.data).map(|(d, f)| d * (1.0 + amp * f / max_abs)).collect() };
+    let warped = Grid {
+        w: dw,
+        h: dh,
+        data: small.data.iter().zip(&field.data).map(|(d, f)| d * (1.0 + amp * f / max_abs)).collect(),
+    };
     let blurred = gaussian_blur(&warped, params.blur_sigma);
     let [lo, hi] = params.scale_range;
     let (lo, hi) = (lo.max(1e-6), hi.max(lo.max(1e-6)));

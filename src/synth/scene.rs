@@ -145,7 +145,14 @@ impl Scene {
         let table = (1.0 * sx, 3.25 * sy);
         solids.push(solid("table_top", [table.0, table.1, 0.74], [0.6, 0.38, 0.02], 0.0, wood, Texture::Wood));
         for (dx, dy) in [(-0.55, -0.33), (0.55, -0.33), (-0.55, 0.33), (0.55, 0.33)] {
-            solids.push(solid("table_leg", [table.0 + dx, table.1 + dy, 0.36], [0.03, 0.03, 0.36], 0.0, wood, Texture::Wood));
+            solids.push(solid(
+                "table_leg",
+                [table.0 + dx, table.1 + dy, 0.36],
+                [0.03, 0.03, 0.36],
+                0.0,
+                wood,
+                Texture::Wood,
+            ));
         }
         solids.extend([
             solid(
@@ -156,16 +163,65 @@ impl Scene {
                 jitter([0.8, 0.2, 0.15]),
                 Texture::Fabric,
             ),
-            solid("cabinet", [l - 0.26, 0.55 * sy, 0.9], [0.25, 0.45, 0.9], 0.0, jitter([0.35, 0.3, 0.28]), Texture::Wood),
-            solid("sofa_seat", [2.5 * sx, 0.42, 0.22], [0.9, 0.4, 0.22], 0.0, jitter([0.25, 0.35, 0.6]), Texture::Fabric),
+            solid(
+                "cabinet",
+                [l - 0.26, 0.55 * sy, 0.9],
+                [0.25, 0.45, 0.9],
+                0.0,
+                jitter([0.35, 0.3, 0.28]),
+                Texture::Wood,
+            ),
+            solid(
+                "sofa_seat",
+                [2.5 * sx, 0.42, 0.22],
+                [0.9, 0.4, 0.22],
+                0.0,
+                jitter([0.25, 0.35, 0.6]),
+                Texture::Fabric,
+            ),
             solid("sofa_back", [2.5 * sx, 0.1, 0.5], [0.9, 0.1, 0.5], 0.0, jitter([0.22, 0.32, 0.55]), Texture::Fabric),
-            solid("armchair", [0.6 * sx, 0.8 * sy, 0.3], [0.3, 0.3, 0.3], 0.5, jitter([0.6, 0.25, 0.3]), Texture::Fabric),
+            solid(
+                "armchair",
+                [0.6 * sx, 0.8 * sy, 0.3],
+                [0.3, 0.3, 0.3],
+                0.5,
+                jitter([0.6, 0.25, 0.3]),
+                Texture::Fabric,
+            ),
             solid("shelf", [4.45 * sx, 3.45 * sy, 0.7], [0.4, 0.2, 0.7], -0.6, jitter([0.5, 0.4, 0.3]), Texture::Wood),
-            solid("bed", [3.0 * sx, 3.62 * sy, 0.25], [0.6, 0.35, 0.25], 0.1, jitter([0.7, 0.7, 0.75]), Texture::Fabric),
-            solid("pillar", [0.3, 2.0 * sy, h / 2.0], [0.15, 0.15, h / 2.0], 0.0, jitter([0.8, 0.8, 0.8]), Texture::Fabric),
-            solid("painting", [2.6 * sx, w - 0.01, 1.5], [0.5, 0.012, 0.35], 0.0, jitter([0.9, 0.8, 0.6]), Texture::Painting),
+            solid(
+                "bed",
+                [3.0 * sx, 3.62 * sy, 0.25],
+                [0.6, 0.35, 0.25],
+                0.1,
+                jitter([0.7, 0.7, 0.75]),
+                Texture::Fabric,
+            ),
+            solid(
+                "pillar",
+                [0.3, 2.0 * sy, h / 2.0],
+                [0.15, 0.15, h / 2.0],
+                0.0,
+                jitter([0.8, 0.8, 0.8]),
+                Texture::Fabric,
+            ),
+            solid(
+                "painting",
+                [2.6 * sx, w - 0.01, 1.5],
+                [0.5, 0.012, 0.35],
+                0.0,
+                jitter([0.9, 0.8, 0.6]),
+                Texture::Painting,
+            ),
             solid("door", [0.012, 3.1 * sy, 1.0], [0.012, 0.45, 1.0], 0.0, jitter([0.6, 0.45, 0.3]), Texture::Wood),
-            solid("poster", [l - 0.01, 2.4 * sy, 1.6], [0.012, 0.4, 0.5], 0.0, jitter([0.8, 0.85, 0.9]), Texture::Painting),
+            solid(
+                "poster",
+                [l - 0.01, 2.4 * sy, 1.6],
+                [0.012, 0.4, 0.5],
+                0.0,
+                jitter([0.8, 0.85, 0.9]),
+                Texture::Painting,
+            ),
         ]);
         let texture_seed = rng.random::<u64>();
         Scene { size: Vector3::new(l, w, h), solids, light: Point3::new(l / 2.0, w / 2.0, h - 0.3), texture_seed }
@@ -195,7 +251,8 @@ impl Scene {
 
     /// Whether a point lies inside the room's interior and outside all solids.
     pub fn is_free(&self, p: &Point3<f64>) -> bool {
-        let inside_room = p.x > 0.0 && p.y > 0.0 && p.z > 0.0 && p.x < self.size.x && p.y < self.size.y && p.z < self.size.z;
+        let inside_room =
+            p.x > 0.0 && p.y > 0.0 && p.z > 0.0 && p.x < self.size.x && p.y < self.size.y && p.z < self.size.z;
         let q = v3(p.x, p.y, p.z);
         inside_room && !self.solids.iter().any(|s| s.cuboid.contains_point(&s.pose, q))
     }
@@ -306,8 +363,9 @@ pub(crate) fn mix64(mut z: u64) -> u64 {
 }
 
 fn lattice(ix: i64, iy: i64, seed: u64) -> f64 {
-    let h =
-        mix64(seed ^ mix64((ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)));
+    let h = mix64(
+        seed ^ mix64((ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)),
+    );
     (h >> 11) as f64 / (1u64 << 53) as f64
 }
 

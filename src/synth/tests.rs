@@ -29,7 +29,13 @@ fn presets_and_config() {
     assert_eq!(partial.seed, 5);
     assert_eq!(partial.width, 320);
     // Garbage is sanitised, not a panic.
-    let bad = SynthConfig { fx: f64::NAN, inlier_ratio: 7.0, width: 0, prior_scale_range: [3.0, -1.0], ..SynthConfig::default() };
+    let bad = SynthConfig {
+        fx: f64::NAN,
+        inlier_ratio: 7.0,
+        width: 0,
+        prior_scale_range: [3.0, -1.0],
+        ..SynthConfig::default()
+    };
     let s = bad.sanitized();
     assert!(s.fx.is_finite() && s.fx > 0.0);
     assert_eq!(s.inlier_ratio, 1.0);
@@ -75,7 +81,8 @@ fn degenerate_configs_do_not_panic() {
 
 #[test]
 fn deterministic_for_a_seed() {
-    let cfg = SynthConfig { width: 160, height: 120, fx: 131.25, fy: 131.25, cx: 80.0, cy: 60.0, ..small("hard", 3, 11) };
+    let cfg =
+        SynthConfig { width: 160, height: 120, fx: 131.25, fy: 131.25, cx: 80.0, cy: 60.0, ..small("hard", 3, 11) };
     let a = generate(&cfg);
     let b = generate(&cfg);
     assert_eq!(a.map.points, b.map.points);
@@ -219,7 +226,8 @@ fn prior_is_affine_in_depth_within_the_warp() {
         let mut errors = Vec::new();
         for v in (0..240).step_by(2) {
             for u in (0..320).step_by(2) {
-                let (Some(d), Some(p)) = (depth.at(u, v), prior.sample(&Point2::new(u as f64, v as f64), 320, 240)) else {
+                let (Some(d), Some(p)) = (depth.at(u, v), prior.sample(&Point2::new(u as f64, v as f64), 320, 240))
+                else {
                     continue;
                 };
                 errors.push(((s.prior_scale * p + s.prior_shift) - d as f64).abs() / d as f64);
@@ -270,13 +278,18 @@ fn patch_outliers_are_locally_rigid_but_wrong() {
         assert_eq!(by_patch.len(), s.patches);
         for members in by_patch.values() {
             // Members that were true before moving: their true places map rigidly onto the moved points.
-            let base: Vec<usize> =
-                members.iter().copied().filter(|&j| matches!(s.labels[j], CorrLabel::Patch { base_inlier: true, .. })).collect();
+            let base: Vec<usize> = members
+                .iter()
+                .copied()
+                .filter(|&j| matches!(s.labels[j], CorrLabel::Patch { base_inlier: true, .. }))
+                .collect();
             if base.len() < 4 {
                 continue;
             }
-            let truth: Vec<Point3<f64>> =
-                base.iter().filter_map(|&j| lift_pixel(&f.intrinsics, &pose, depth, &f.correspondences[j].pixel)).collect();
+            let truth: Vec<Point3<f64>> = base
+                .iter()
+                .filter_map(|&j| lift_pixel(&f.intrinsics, &pose, depth, &f.correspondences[j].pixel))
+                .collect();
             let moved: Vec<Point3<f64>> = base.iter().map(|&j| f.correspondences[j].point).collect();
             let rms = rigid_fit_rms(&truth, &moved);
             assert!(rms < 0.01, "patch not rigid: rms {rms}");
