@@ -2,6 +2,9 @@
 //! says which to keep. The training-free [`SpectralRejector`] lives here; the learned network
 //! plugs in behind the same trait.
 
+pub mod features;
+pub mod graph;
+
 use nalgebra::{Point2, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -84,11 +87,13 @@ impl FrameGeometry {
     /// Scale and shift of the prior from the correspondences themselves; local pairs are each
     /// pixel's nearest neighbours in the image.
     fn estimate_scale_shift(&self, params: &ScaleShiftParams) -> Option<ScaleShift> {
-        let known: Vec<usize> = (0..self.len()).filter(|&i| self.prior_depth[i].is_finite() && self.prior_depth[i] > 0.0).collect();
+        let known: Vec<usize> =
+            (0..self.len()).filter(|&i| self.prior_depth[i].is_finite() && self.prior_depth[i] > 0.0).collect();
         let rays: Vec<_> = known.iter().map(|&i| self.rays[i]).collect();
         let depth: Vec<_> = known.iter().map(|&i| self.prior_depth[i]).collect();
         let map: Vec<_> = known.iter().map(|&i| self.map_points[i]).collect();
-        let flat: Vec<Point3<f32>> = known.iter().map(|&i| Point3::new(self.pixels[i].x as f32, self.pixels[i].y as f32, 0.0)).collect();
+        let flat: Vec<Point3<f32>> =
+            known.iter().map(|&i| Point3::new(self.pixels[i].x as f32, self.pixels[i].y as f32, 0.0)).collect();
         let index = PointIndex::new(&flat);
         let neighbours = params.local_neighbours.min(params.max_local_pairs / known.len().max(1)).max(1);
         let mut pairs = Vec::with_capacity(known.len() * neighbours);
@@ -111,7 +116,11 @@ impl FrameGeometry {
             .zip(&self.prior_depth)
             .map(|(r, &d)| {
                 let z = align.depth(d);
-                if z.is_finite() && z > 0.0 { Point3::from(r * z) } else { Point3::new(f64::NAN, f64::NAN, f64::NAN) }
+                if z.is_finite() && z > 0.0 {
+                    Point3::from(r * z)
+                } else {
+                    Point3::new(f64::NAN, f64::NAN, f64::NAN)
+                }
             })
             .collect();
     }
@@ -290,9 +299,13 @@ impl Rejector for SpectralRejector {
                     angle_consistency(&self.image, &self.map, Some(&weights), self.params.sigma_d, &mut self.theta);
                 }
             }
-            ConsistencyMetric::Distance => {
-                distance_consistency(&self.image, &self.map, self.params.sigma_abs, self.params.sigma_rel, &mut self.theta)
-            }
+            ConsistencyMetric::Distance => distance_consistency(
+                &self.image,
+                &self.map,
+                self.params.sigma_abs,
+                self.params.sigma_rel,
+                &mut self.theta,
+            ),
         }
         self.leading_eigenvector();
         let max = self.vector.iter().copied().fold(0.0f32, f32::max);
@@ -332,8 +345,11 @@ mod tests {
         let (w, h) = (160u32, 120u32);
         // Metric depth: a tilted plane z = 2 + 0.004·u; prior = (z − 0.3)/1.5, at half resolution.
         let depth_at = |u: f64| 2.0 + 0.004 * u;
-        let data = (0..h).flat_map(|_| (0..w).map(move |x| ((depth_at((x as f64 + 0.5) * 2.0 - 0.5) - 0.3) / 1.5) as f32)).collect();
-        let pose = Isometry3::from_parts(Translation3::new(1.0, 0.5, -0.2), UnitQuaternion::from_euler_angles(0.1, 0.7, -0.3));
+        let data = (0..h)
+            .flat_map(|_| (0..w).map(move |x| ((depth_at((x as f64 + 0.5) * 2.0 - 0.5) - 0.3) / 1.5) as f32))
+            .collect();
+        let pose =
+            Isometry3::from_parts(Translation3::new(1.0, 0.5, -0.2), UnitQuaternion::from_euler_angles(0.1, 0.7, -0.3));
         let mut state = 12345u64;
         let mut rnd = move || {
             state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
