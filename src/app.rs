@@ -85,6 +85,13 @@ fn write_localization(w: &mut BagWriter, topics: &TopicMap, loc: &Localization) 
     }
     let kept = convert::correspondences_msg(t, &loc.camera_frame_id, &loc.map_frame_id, &loc.kept);
     w.write(&topics.output_correspondences, t, &kept)?;
+    w.write(DIAGNOSTICS_TOPIC, t, &localization_diagnostics(loc))?;
+    Ok(())
+}
+
+/// The per-frame diagnostics `replay` writes for `loc` (status [`STATUS_NAME`]: method,
+/// timings, kept, PnP inliers, failure); `node --record` records the same.
+pub fn localization_diagnostics(loc: &Localization) -> DiagnosticArray {
     let t_ = &loc.timings;
     let values = [
         ("total_ms", format!("{:.4}", t_.total_ms)),
@@ -95,7 +102,7 @@ fn write_localization(w: &mut BagWriter, topics: &TopicMap, loc: &Localization) 
         ("pnp_inliers", loc.num_inliers.to_string()),
     ];
     let failure = loc.failure.as_ref().map(|f| f.to_string());
-    write_diagnostics(w, t, loc.method.name(), &values, failure.as_deref())
+    diagnostics_msg(loc.stamp, loc.method.name(), &values, failure.as_deref())
 }
 
 fn write_diagnostics(
@@ -105,6 +112,11 @@ fn write_diagnostics(
     values: &[(&str, String)],
     failure: Option<&str>,
 ) -> Result<()> {
+    w.write(DIAGNOSTICS_TOPIC, stamp, &diagnostics_msg(stamp, method, values, failure))?;
+    Ok(())
+}
+
+fn diagnostics_msg(stamp: Stamp, method: &str, values: &[(&str, String)], failure: Option<&str>) -> DiagnosticArray {
     let mut kv = vec![KeyValue { key: "method".into(), value: method.into() }];
     kv.extend(values.iter().map(|(k, v)| KeyValue { key: (*k).into(), value: v.clone() }));
     let status = DiagnosticStatus {
@@ -114,9 +126,7 @@ fn write_diagnostics(
         hardware_id: String::new(),
         values: kv,
     };
-    let msg = DiagnosticArray { header: Header::new(stamp, ""), status: vec![status] };
-    w.write(DIAGNOSTICS_TOPIC, stamp, &msg)?;
-    Ok(())
+    DiagnosticArray { header: Header::new(stamp, ""), status: vec![status] }
 }
 
 /// What an output bag says about one frame.
@@ -196,4 +206,86 @@ pub fn raw_inlier_ratio(input: &BagFrames) -> Summary {
         })
         .collect();
     summarize(&rows)
+}
+
+/// What an export wrote.
+pub struct ExportReport {
+    pub samples: usize,
+    pub skipped: Vec<String>,
+}
+
+/// Writes one training sample per frame of `input` that has ground truth: a folder per stamp
+/// with `.npy` arrays — `features` (N×24, eq. 9), `local_index` (V×K), `local_theta` (V×K×K),
+/// `global_index` (M), `global_theta` (M×M), `cross_theta` (N×M), `spectral` (N), `labels` (N:
+/// 1 inlier, 0 outlier, −1 no ground-truth depth; the 5 cm rule of `eval`) and `correspondences`
+/// (N×6: u, v, x, y, z, score).
+pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) -> Result<ExportReport> {
+    use crate::npy;
+    use crate::reject::graph::GraphParams;
+    use crate::reject::inputs::{build_inputs, IndexedMap};
+    use crate::reject::{FrameGeometry, SpectralRejector};
+
+    let bag = read_frames(input, &params.topics)?;
+    let map = bag.map.as_ref().map(|m| IndexedMap::new(m.points.clone()));
+    let mut spectral = SpectralRejector::new(params.spectral.clone());
+    let graph = GraphParams::default();
+    let mut report = ExportReport { samples: 0, skipped: Vec::new() };
+    for frame in &bag.frames {
+        let Some((gt_pose, gt_depth)) =
+            frame.ground_truth.as_ref().and_then(|g| Some((g.pose.as_ref()?, g.depth.as_ref()?)))
+        else {
+            report.skipped.push(format!("frame {}: no ground-truth pose and depth", frame.stamp));
+            continue;
+        };
+        if frame.depth_prior.is_none() || frame.correspondences.is_empty() {
+            report.skipped.push(format!("frame {}: no depth prior or no correspondences", frame.stamp));
+            continue;
+        }
+        let geometry = FrameGeometry::build(frame, params.depth_kind, Some(&params.align));
+        let inputs = build_inputs(frame, &geometry, map.as_ref(), params.depth_kind, &mut spectral, &graph);
+        let labels: Vec<f32> = inlier_mask(&frame.correspondences, &frame.intrinsics, gt_pose, gt_depth)
+            .into_iter()
+            .map(|(inlier, valid)| {
+                if !valid {
+                    -1.0
+                } else if inlier {
+                    1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let dir = out.join(frame.stamp.to_string());
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        let (n, g) = (geometry.len(), &inputs.graphs);
+        let m = g.global_index.len();
+        let index = |v: &[u32]| v.iter().map(|&i| i as i64).collect::<Vec<i64>>();
+        let flat: Vec<f32> = inputs.features.iter().flatten().copied().collect();
+        let corr: Vec<f32> = frame
+            .correspondences
+            .iter()
+            .flat_map(|c| {
+                [c.pixel.x as f32, c.pixel.y as f32, c.point.x as f32, c.point.y as f32, c.point.z as f32, c.score]
+            })
+            .collect();
+        let write =
+            |name: &str, r: std::io::Result<()>| r.with_context(|| format!("writing {}/{name}.npy", dir.display()));
+        write("features", npy::write(&dir.join("features.npy"), &flat, &[n, flat.len() / n.max(1)]))?;
+        write(
+            "local_index",
+            npy::write(&dir.join("local_index.npy"), &index(&g.local_index), &[g.nodes, g.neighbours]),
+        )?;
+        write(
+            "local_theta",
+            npy::write(&dir.join("local_theta.npy"), &g.local_theta, &[g.nodes, g.neighbours, g.neighbours]),
+        )?;
+        write("global_index", npy::write(&dir.join("global_index.npy"), &index(&g.global_index), &[m]))?;
+        write("global_theta", npy::write(&dir.join("global_theta.npy"), &g.global_theta, &[m, m]))?;
+        write("cross_theta", npy::write(&dir.join("cross_theta.npy"), &g.cross_theta, &[n, m]))?;
+        write("spectral", npy::write(&dir.join("spectral.npy"), &inputs.spectral_scores, &[n]))?;
+        write("labels", npy::write(&dir.join("labels.npy"), &labels, &[n]))?;
+        write("correspondences", npy::write(&dir.join("correspondences.npy"), &corr, &[n, 6]))?;
+        report.samples += 1;
+    }
+    Ok(report)
 }

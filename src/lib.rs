@@ -13,6 +13,7 @@ pub mod frame;
 pub mod geometry;
 pub mod msgs;
 pub mod node;
+pub mod npy;
 pub mod params;
 pub mod pipeline;
 pub mod play;

@@ -57,6 +57,15 @@ enum Command {
         #[arg(long)]
         params_file: Option<PathBuf>,
     },
+    /// Write training samples for the learned rejector (features, graphs, θ, labels) from a bag
+    /// with ground truth: one folder of `.npy` arrays per frame.
+    Export {
+        bag: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        params_file: Option<PathBuf>,
+    },
     /// Print the last `/diagnostics` status of each name recorded in a bag (e.g. `node --record`).
     Diagnostics { bag: PathBuf },
     /// Print the effective parameters as a ROS 2 params file.
@@ -195,6 +204,15 @@ fn run(cli: Cli) -> Result<()> {
         Command::Play(args) => {
             let report = angle_i2p::play::play(&args)?;
             println!("{report}");
+            Ok(())
+        }
+        Command::Export { bag, out, params_file } => {
+            let params = load_params(params_file.as_deref())?;
+            let report = app::export_samples(&bag, &out, &params)?;
+            for s in &report.skipped {
+                eprintln!("warning: {s}");
+            }
+            println!("{} samples → {}", report.samples, out.display());
             Ok(())
         }
         Command::Diagnostics { bag } => {

@@ -75,3 +75,39 @@ fn eval_agrees_with_the_reference_evaluator() {
         assert!((a - b).abs() <= 0.0006, "{key}: ours {a}, reference {b}");
     }
 }
+
+/// Training samples for the learned rejector: one folder of `.npy` arrays per frame, consistent
+/// shapes, labels from the 5 cm rule, readable by numpy.
+#[test]
+fn export_writes_training_samples_numpy_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let (bag, out) = (dir.path().join("in"), dir.path().join("samples"));
+    run_ok(
+        Command::new(binary()).args(["synth", "--preset", "hard", "--frames", "2", "--seed", "4", "--out"]).arg(&bag),
+    );
+    let text = run_ok(Command::new(binary()).arg("export").arg(&bag).arg("--out").arg(&out));
+    assert!(text.starts_with("2 samples"), "{text}");
+    let Some(py) = python() else {
+        return skip_or_fail("no Python with numpy (make py-venv)");
+    };
+    let script = r#"
+import glob, sys, numpy as np
+frames = sorted(glob.glob(sys.argv[1] + "/*/"))
+assert len(frames) == 2, frames
+for d in frames:
+    a = {k: np.load(d + k + ".npy") for k in ["features", "local_index", "local_theta", "global_index",
+         "global_theta", "cross_theta", "spectral", "labels", "correspondences"]}
+    n = len(a["labels"])
+    v, k = a["local_index"].shape
+    m = len(a["global_index"])
+    assert a["features"].shape == (n, 24) and a["correspondences"].shape == (n, 6)
+    assert a["local_theta"].shape == (v, k, k) and a["global_theta"].shape == (m, m) and a["cross_theta"].shape == (n, m)
+    assert k == 32 and m == 100 and a["local_index"].max() < n
+    assert set(np.unique(a["labels"])) <= {-1.0, 0.0, 1.0}
+    ratio = (a["labels"] == 1).sum() / (a["labels"] >= 0).sum()
+    assert 0.1 < ratio < 0.2, ratio
+print("ok")
+"#;
+    let out_text = run_ok(Command::new(py).arg("-c").arg(script).arg(&out));
+    assert_eq!(out_text.trim(), "ok");
+}

@@ -4,6 +4,7 @@
 
 pub mod features;
 pub mod graph;
+pub mod inputs;
 
 use nalgebra::{Point2, Point3, Vector3};
 use serde::{Deserialize, Serialize};

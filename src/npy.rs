@@ -1,0 +1,71 @@
+//! Minimal writer of NumPy `.npy` files (format 1.0, little-endian, C order), for training
+//! samples that Python reads with `numpy.load`.
+
+use std::io::Write;
+use std::path::Path;
+
+/// An element type numpy knows.
+pub trait NpyElement: Copy {
+    const DESCR: &'static str;
+    fn write_le(self, out: &mut Vec<u8>);
+}
+
+impl NpyElement for f32 {
+    const DESCR: &'static str = "<f4";
+    fn write_le(self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.to_le_bytes());
+    }
+}
+
+impl NpyElement for i64 {
+    const DESCR: &'static str = "<i8";
+    fn write_le(self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.to_le_bytes());
+    }
+}
+
+/// The bytes of an `.npy` file holding `data` with `shape` (product of shape = data length).
+pub fn encode<T: NpyElement>(data: &[T], shape: &[usize]) -> Vec<u8> {
+    debug_assert_eq!(shape.iter().product::<usize>(), data.len());
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let shape_text = match dims.len() {
+        1 => format!("({},)", dims[0]),
+        _ => format!("({})", dims.join(", ")),
+    };
+    let mut header = format!("{{'descr': '{}', 'fortran_order': False, 'shape': {}, }}", T::DESCR, shape_text);
+    // Magic (6) + version (2) + length (2) + header + '\n' is a multiple of 64.
+    let unpadded = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
+    header.push('\n');
+    let mut out = Vec::with_capacity(10 + header.len() + data.len() * 8);
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    for &v in data {
+        v.write_le(&mut out);
+    }
+    out
+}
+
+pub fn write<T: NpyElement>(path: &Path, data: &[T], shape: &[usize]) -> std::io::Result<()> {
+    std::fs::File::create(path)?.write_all(&encode(data, shape))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn header_is_aligned_and_describes_the_array() {
+        let bytes = encode(&[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0], &[2, 3]);
+        let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+        assert_eq!((10 + header_len) % 64, 0);
+        let header = std::str::from_utf8(&bytes[10..10 + header_len]).unwrap();
+        assert!(header.contains("'descr': '<f4'") && header.contains("'shape': (2, 3)"), "{header}");
+        assert_eq!(bytes.len(), 10 + header_len + 24);
+        assert_eq!(&bytes[10 + header_len..10 + header_len + 4], &1.0f32.to_le_bytes());
+        let one = encode(&[7i64], &[1]);
+        assert!(String::from_utf8_lossy(&one).contains("'descr': '<i8', 'fortran_order': False, 'shape': (1,)"));
+        assert_eq!(&one[one.len() - 8..], &7i64.to_le_bytes());
+    }
+}
