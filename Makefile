@@ -26,7 +26,7 @@ demo: build
 	./target/release/angle-i2p eval $(DEMO_BAG) --est out/demo-ransac --est out/demo-consistency
 
 # All tests (unit, integration, Python-reader interop, evaluator agreement when ../shared is present).
-test: py-venv
+test: py-venv ort
 	ANGLE_I2P_PYTHON=$(abspath $(VENV))/bin/python $(CARGO) test --release --all-targets
 
 bench:

@@ -34,7 +34,13 @@ pub fn replay(
     topics: &TopicMap,
     mut on_frame: impl FnMut(usize, usize, &Localization),
 ) -> Result<ReplayReport> {
-    let BagFrames { frames, incomplete, issues, .. } = read_frames(input, topics)?;
+    let BagFrames { map, frames, incomplete, issues } = read_frames(input, topics)?;
+    if let Some(e) = localizer.setup_error() {
+        anyhow::bail!("method {}: {e}", localizer.params().method.name());
+    }
+    if let Some(map) = &map {
+        localizer.set_map(map);
+    }
     let mut writer = BagWriter::create(output)?;
     let mut localizations = Vec::with_capacity(frames.len());
     for (k, frame) in frames.iter().enumerate() {
@@ -242,7 +248,7 @@ pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) 
             continue;
         }
         let geometry = FrameGeometry::build(frame, params.depth_kind, Some(&params.align));
-        let inputs = build_inputs(frame, &geometry, map.as_ref(), params.depth_kind, &mut spectral, &graph);
+        let inputs = build_inputs(&geometry, map.as_ref(), &mut spectral, &graph);
         let labels: Vec<f32> = inlier_mask(&frame.correspondences, &frame.intrinsics, gt_pose, gt_depth)
             .into_iter()
             .map(|(inlier, valid)| {

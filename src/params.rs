@@ -11,6 +11,7 @@ use crate::geometry::DepthKind;
 use crate::node::NodeParams;
 use crate::pipeline::{FinalRefine, Method};
 use crate::pnp::PnpParams;
+use crate::reject::network::NetworkParams;
 use crate::reject::SpectralParams;
 
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
@@ -24,6 +25,8 @@ pub struct Params {
     pub align: ScaleShiftParams,
     /// The training-free spectral rejector.
     pub spectral: SpectralParams,
+    /// The learned rejector (method `angle-i2p`).
+    pub network: NetworkParams,
     /// Robust PnP.
     pub pnp: PnpParams,
     /// Last refinement on every correspondence agreeing with the pose.

@@ -10,6 +10,7 @@ use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::params::Params;
 use crate::pnp::{pose_covariance, refine_pose, solve_pnp_ransac, PnpError, RefineOptions, RobustLoss};
+use crate::reject::network::NetworkRejector;
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
 
 /// How outliers are rejected before PnP.
@@ -21,6 +22,10 @@ pub enum Method {
     /// Spectral scoring of the pairwise consistency matrix, then score-ordered LO-RANSAC.
     #[default]
     Consistency,
+    /// The learned Angle-I2P network (ONNX Runtime), then score-ordered LO-RANSAC.
+    #[value(name = "angle-i2p")]
+    #[serde(rename = "angle-i2p")]
+    AngleI2p,
 }
 
 impl Method {
@@ -28,6 +33,7 @@ impl Method {
         match self {
             Method::Ransac => "ransac",
             Method::Consistency => "consistency",
+            Method::AngleI2p => "angle-i2p",
         }
     }
 }
@@ -124,15 +130,37 @@ pub struct Localization {
 pub struct Localizer {
     params: Params,
     rejector: Option<Box<dyn Rejector>>,
+    /// Why the method's rejector could not be set up (every frame then fails with it).
+    setup_error: Option<String>,
 }
 
 impl Localizer {
     pub fn new(params: Params) -> Self {
+        let mut setup_error = None;
         let rejector: Option<Box<dyn Rejector>> = match params.method {
             Method::Ransac => None,
             Method::Consistency => Some(Box::new(SpectralRejector::new(params.spectral.clone()))),
+            Method::AngleI2p => match NetworkRejector::new(params.network.clone(), params.spectral.clone()) {
+                Ok(r) => Some(Box::new(r)),
+                Err(e) => {
+                    setup_error = Some(e.to_string());
+                    None
+                }
+            },
         };
-        Self { params, rejector }
+        Self { params, rejector, setup_error }
+    }
+
+    /// Why the configured method cannot run (e.g. ONNX Runtime or the model is missing).
+    pub fn setup_error(&self) -> Option<&str> {
+        self.setup_error.as_deref()
+    }
+
+    /// The map frames are localized against (rejectors that use its geometry keep it).
+    pub fn set_map(&mut self, map: &crate::frame::MapCloud) {
+        if let Some(r) = self.rejector.as_mut() {
+            r.set_map(map);
+        }
     }
 
     pub fn params(&self) -> &Params {
@@ -154,6 +182,11 @@ impl Localizer {
             timings: StageTimings::default(),
             failure: None,
         };
+        if let Some(e) = &self.setup_error {
+            out.failure = Some(Failure::Rejection(RejectError::Failed(e.clone())));
+            out.timings.total_ms = ms_since(start);
+            return out;
+        }
         if let Err(failure) = self.validate(frame) {
             out.failure = Some(failure);
             out.timings.total_ms = ms_since(start);

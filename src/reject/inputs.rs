@@ -5,11 +5,10 @@
 
 use nalgebra::Point3;
 
-use super::features::{features, image_normals, map_normals, FEATURE_DIM};
+use super::features::{features, map_normals, FEATURE_DIM};
 use super::graph::{build_graphs, GraphParams, Graphs};
 use super::{FrameGeometry, Rejector, SpectralRejector};
-use crate::frame::Frame;
-use crate::geometry::{DepthKind, PointIndex};
+use crate::geometry::PointIndex;
 
 /// The map, indexed once for normals.
 pub struct IndexedMap {
@@ -37,15 +36,12 @@ pub struct NetworkInputs {
 /// Builds the inputs. Correspondences without prior depth get their map point as image point
 /// in the graphs (their θ rows then carry no information rather than a wrong one).
 pub fn build_inputs(
-    frame: &Frame,
     geometry: &FrameGeometry,
     map: Option<&IndexedMap>,
-    kind: DepthKind,
     spectral: &mut SpectralRejector,
     graph: &GraphParams,
 ) -> NetworkInputs {
     let spectral_scores = spectral.reject(geometry).map(|r| r.scores).unwrap_or_else(|_| vec![0.0; geometry.len()]);
-    let n_image = image_normals(frame, geometry, kind);
     let n_map = match map {
         Some(m) => map_normals(&m.index, &m.points, geometry),
         None => vec![nalgebra::Vector3::zeros(); geometry.len()],
@@ -57,7 +53,7 @@ pub fn build_inputs(
         })
         .collect();
     NetworkInputs {
-        features: features(geometry, &n_image, &n_map),
+        features: features(geometry, &geometry.image_normals, &n_map),
         graphs: build_graphs(&image, &geometry.map_points, &spectral_scores, graph),
         spectral_scores,
     }

@@ -5,6 +5,7 @@
 pub mod features;
 pub mod graph;
 pub mod inputs;
+pub mod network;
 
 use nalgebra::{Point2, Point3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -32,6 +33,9 @@ pub struct FrameGeometry {
     pub scale_shift: Option<ScaleShift>,
     /// o_i: pixels back-projected with the aligned prior (prior units if not aligned).
     pub image_points: Vec<Point3<f64>>,
+    /// n^I: normals of the image cloud from the dense prior, towards the camera (zero where
+    /// unknown); empty without a prior.
+    pub image_normals: Vec<Vector3<f64>>,
 }
 
 impl FrameGeometry {
@@ -63,12 +67,14 @@ impl FrameGeometry {
             prior_depth,
             scale_shift: None,
             image_points: Vec::new(),
+            image_normals: Vec::new(),
         };
         if frame.depth_prior.is_some() {
             if let Some(params) = align {
                 geometry.scale_shift = geometry.estimate_scale_shift(params);
             }
             geometry.lift();
+            geometry.image_normals = features::image_normals(frame, &geometry, kind);
         }
         geometry
     }
@@ -147,6 +153,8 @@ pub enum RejectError {
 /// Scores correspondences as inliers and selects those to keep.
 pub trait Rejector: Send {
     fn name(&self) -> &'static str;
+    /// A new map to localize against (rejectors that use map geometry keep it).
+    fn set_map(&mut self, _map: &crate::frame::MapCloud) {}
     fn reject(&mut self, geometry: &FrameGeometry) -> Result<Rejection, RejectError>;
 }
 

@@ -1,0 +1,92 @@
+//! The learned rejector in Rust: inputs built here equal the ones the model was checked with,
+//! and ONNX Runtime's scores equal PyTorch's (≤ 1e-4) on them — the parity of training and
+//! inference. Needs ONNX Runtime (`make ort`); skipped without it, a failure in CI.
+
+use std::path::{Path, PathBuf};
+
+use angle_i2p::bag::read_frames;
+use angle_i2p::npy;
+use angle_i2p::params::Params;
+use angle_i2p::reject::graph::{GraphParams, Graphs};
+use angle_i2p::reject::inputs::{build_inputs, IndexedMap, NetworkInputs};
+use angle_i2p::reject::network::{runtime_path, NetworkParams, NetworkRejector};
+use angle_i2p::reject::{FrameGeometry, SpectralRejector};
+
+mod common;
+use common::{manifest, skip_or_fail};
+
+fn sample_dir() -> PathBuf {
+    manifest().join("models/parity/sample")
+}
+
+fn f32s(dir: &Path, name: &str) -> Vec<f32> {
+    npy::read::<f32>(&dir.join(format!("{name}.npy"))).unwrap().0
+}
+
+fn u32s(dir: &Path, name: &str) -> (Vec<u32>, Vec<usize>) {
+    let (v, shape) = npy::read::<i64>(&dir.join(format!("{name}.npy"))).unwrap();
+    (v.into_iter().map(|i| i as u32).collect(), shape)
+}
+
+/// The stored sample: `angle-i2p export bags/synth-hard`, first frame.
+fn stored_inputs() -> NetworkInputs {
+    let dir = sample_dir();
+    let flat = f32s(&dir, "features");
+    let (local_index, local_shape) = u32s(&dir, "local_index");
+    let (global_index, _) = u32s(&dir, "global_index");
+    NetworkInputs {
+        features: flat.chunks_exact(24).map(|c| c.try_into().unwrap()).collect(),
+        graphs: Graphs {
+            local_index,
+            nodes: local_shape[0],
+            neighbours: local_shape[1],
+            local_theta: f32s(&dir, "local_theta"),
+            global_index,
+            global_theta: f32s(&dir, "global_theta"),
+            cross_theta: f32s(&dir, "cross_theta"),
+        },
+        spectral_scores: f32s(&dir, "spectral"),
+    }
+}
+
+fn assert_close(a: &[f32], b: &[f32], tol: f32, what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: lengths");
+    let worst = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    assert!(worst <= tol, "{what}: max difference {worst}");
+}
+
+#[test]
+fn rust_inputs_are_reproduced_exactly() {
+    let bag = read_frames(manifest().join("bags/synth-hard"), &Params::default().topics).unwrap();
+    let params = Params::default();
+    let frame = &bag.frames[0];
+    let geometry = FrameGeometry::build(frame, params.depth_kind, Some(&params.align));
+    let map = IndexedMap::new(bag.map.unwrap().points);
+    let mut spectral = SpectralRejector::new(params.spectral.clone());
+    let now = build_inputs(&geometry, Some(&map), &mut spectral, &GraphParams::default());
+    let stored = stored_inputs();
+    let flat: Vec<f32> = now.features.iter().flatten().copied().collect();
+    let stored_flat: Vec<f32> = stored.features.iter().flatten().copied().collect();
+    assert_close(&flat, &stored_flat, 1e-6, "features");
+    assert_eq!(now.graphs.local_index, stored.graphs.local_index);
+    assert_eq!(now.graphs.global_index, stored.graphs.global_index);
+    assert_close(&now.graphs.local_theta, &stored.graphs.local_theta, 1e-6, "local θ");
+    assert_close(&now.graphs.global_theta, &stored.graphs.global_theta, 1e-6, "global θ");
+    assert_close(&now.graphs.cross_theta, &stored.graphs.cross_theta, 1e-6, "cross θ");
+}
+
+#[test]
+fn onnx_runtime_scores_equal_pytorch_scores() {
+    let params = NetworkParams {
+        model_path: manifest().join("models/angle_i2p.onnx").display().to_string(),
+        onnxruntime_path: manifest().join(runtime_path(&NetworkParams::default())).display().to_string(),
+        ..NetworkParams::default()
+    };
+    if !Path::new(&params.onnxruntime_path).exists() {
+        return skip_or_fail(&format!("no ONNX Runtime at {} (make ort)", params.onnxruntime_path));
+    }
+    let mut rejector = NetworkRejector::new(params, Default::default()).unwrap();
+    let scores = rejector.run(&stored_inputs()).unwrap();
+    let torch = f32s(&sample_dir(), "scores_torch");
+    assert_close(&scores, &torch, 1e-4, "scores");
+}

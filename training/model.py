@@ -1,0 +1,83 @@
+"""The Angle-I2P outlier-rejection network (paper section 3.3), sized for a CPU core.
+
+Inputs (built in Rust by `angle-i2p export` / the node, never inside the graph):
+  features     [N, 24]    eq. (9)
+  local_index  [V, K]     each local node's K nearest correspondences (int64)
+  local_theta  [V, K, K]  angle consistency θ inside each node's group (eq. 7)
+  global_index [M]        the M keypoint correspondences (int64)
+  global_theta [M, M]     θ among the keypoints
+  cross_theta  [N, M]     θ between every correspondence and every keypoint
+Output: score [N], the inlier probability.
+
+Each block: self-attention inside every local group, self-attention among the keypoints,
+then cross-attention from every correspondence to the keypoints; all attention logits are
+multiplied by θ before the softmax (eq. 10-11). GraphSCNet's layout (ops, layers, model kept
+apart), written here from the paper.
+"""
+import math
+
+import torch
+from torch import nn
+
+
+class ThetaAttention(nn.Module):
+    """Single-head attention whose logits are multiplied by a consistency matrix θ."""
+
+    def __init__(self, d: int):
+        super().__init__()
+        self.q = nn.Linear(d, d)
+        self.k = nn.Linear(d, d)
+        self.v = nn.Linear(d, d)
+        self.out = nn.Linear(d, d)
+        self.norm = nn.LayerNorm(d)
+        self.ffn = nn.Sequential(nn.Linear(d, 2 * d), nn.ReLU(), nn.Linear(2 * d, d))
+        self.norm2 = nn.LayerNorm(d)
+        self.scale = 1.0 / math.sqrt(d)
+
+    def forward(self, query, key, theta):
+        # query [..., A, d], key [..., B, d], theta [..., A, B]
+        logits = theta * (self.q(query) @ self.k(key).transpose(-1, -2)) * self.scale
+        x = self.norm(query + self.out(torch.softmax(logits, dim=-1) @ self.v(key)))
+        return self.norm2(x + self.ffn(x))
+
+
+class Block(nn.Module):
+    def __init__(self, d: int, use_global: bool = True):
+        super().__init__()
+        self.local = ThetaAttention(d)
+        self.use_global = use_global
+        if use_global:
+            self.keypoints = ThetaAttention(d)
+            self.cross = ThetaAttention(d)
+
+    def forward(self, f, local_index, local_theta, global_index, global_theta, cross_theta):
+        n, d = f.shape
+        groups = f[local_index]  # [V, K, d]
+        groups = self.local(groups, groups, local_theta)
+        # Each correspondence: mean over the groups it belongs to (itself where in none).
+        flat_index = local_index.reshape(-1)
+        summed = torch.zeros_like(f).index_add(0, flat_index, groups.reshape(-1, d))
+        count = torch.zeros(n, 1, dtype=f.dtype).index_add(0, flat_index, torch.ones(flat_index.shape[0], 1))
+        f = torch.where(count > 0, summed / count.clamp(min=1.0), f)
+        if self.use_global:
+            keys = f[global_index]
+            keys = self.keypoints(keys, keys, global_theta)
+            f = self.cross(f, keys, cross_theta)
+        return f
+
+
+class AngleI2PNet(nn.Module):
+    def __init__(self, d: int = 32, blocks: int = 2, use_global: bool = True):
+        super().__init__()
+        self.embed = nn.Sequential(nn.Linear(24, d), nn.ReLU(), nn.Linear(d, d))
+        self.blocks = nn.ModuleList(Block(d, use_global) for _ in range(blocks))
+        self.head = nn.Sequential(nn.Linear(d, d), nn.ReLU(), nn.Linear(d, 1))
+
+    def forward(self, features, local_index, local_theta, global_index, global_theta, cross_theta):
+        f = self.embed(features)
+        for block in self.blocks:
+            f = block(f, local_index, local_theta, global_index, global_theta, cross_theta)
+        return torch.sigmoid(self.head(f)).squeeze(-1)
+
+
+INPUT_NAMES = ["features", "local_index", "local_theta", "global_index", "global_theta", "cross_theta"]

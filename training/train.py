@@ -1,0 +1,88 @@
+"""Trains the Angle-I2P rejector on exported samples and writes an ONNX model.
+
+    python train.py --train DIR [DIR ...] --val DIR [DIR ...] --out ../models/angle_i2p.onnx
+"""
+import argparse
+import json
+import random
+import time
+
+import numpy as np
+import torch
+
+from dataset import load_dir
+from model import INPUT_NAMES, AngleI2PNet
+
+
+def focal_loss(score, label, gamma=2.0, alpha=0.75):
+    valid = label >= 0
+    p, y = score[valid].clamp(1e-6, 1 - 1e-6), label[valid]
+    pt = torch.where(y > 0.5, p, 1 - p)
+    w = torch.where(y > 0.5, torch.full_like(p, alpha), torch.full_like(p, 1 - alpha))
+    return (-w * (1 - pt) ** gamma * pt.log()).mean()
+
+
+def metrics(model, samples, tau):
+    """Precision/recall of score ≥ τ, and precision of the top-40 scores, over labelled points."""
+    tp = fp = fn = 0
+    top = []
+    with torch.no_grad():
+        for s in samples:
+            score = model(*[s[k] for k in INPUT_NAMES])
+            y = s["labels"]
+            valid = y >= 0
+            keep = (score >= tau) & valid
+            tp += int(((y == 1) & keep).sum()); fp += int(((y == 0) & keep).sum()); fn += int(((y == 1) & ~keep & valid).sum())
+            order = torch.argsort(-score)[:40]
+            top.append(float((y[order] == 1).float().mean()))
+    return {"precision": tp / max(1, tp + fp), "recall": tp / max(1, tp + fn), "top40_precision": float(np.mean(top))}
+
+
+def export(model, sample, path):
+    """One ONNX file (no external data), dynamic N, V, K, M; opset 18."""
+    torch.save(model.state_dict(), path.replace(".onnx", ".pt"))
+    args = tuple(sample[k] for k in INPUT_NAMES)
+    n, v, k, m = torch.export.Dim("n"), torch.export.Dim("v"), torch.export.Dim("k"), torch.export.Dim("m")
+    dims = {"features": {0: n}, "local_index": {0: v, 1: k}, "local_theta": {0: v, 1: k, 2: k},
+            "global_index": {0: m}, "global_theta": {0: m, 1: m}, "cross_theta": {0: n, 1: m}}
+    torch.onnx.export(model, args, path, input_names=INPUT_NAMES, output_names=["score"], dynamic_shapes=dims,
+                      opset_version=18, external_data=False)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--train", nargs="+", required=True)
+    ap.add_argument("--val", nargs="+", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--epochs", type=int, default=20)
+    ap.add_argument("--d", type=int, default=32)
+    ap.add_argument("--blocks", type=int, default=2)
+    ap.add_argument("--lr", type=float, default=1e-3)
+    ap.add_argument("--tau", type=float, default=0.2)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args()
+    torch.manual_seed(a.seed); random.seed(a.seed)
+    torch.set_num_threads(2)
+    train = [s for d in a.train for s in load_dir(d)]
+    val = {d: load_dir(d) for d in a.val}
+    print(f"{len(train)} training samples; val: " + ", ".join(f"{d}: {len(v)}" for d, v in val.items()), flush=True)
+    model = AngleI2PNet(d=a.d, blocks=a.blocks)
+    opt = torch.optim.AdamW(model.parameters(), lr=a.lr, weight_decay=1e-6)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, a.epochs * len(train))
+    for epoch in range(a.epochs):
+        random.shuffle(train)
+        t0, total = time.time(), 0.0
+        model.train()
+        for s in train:
+            loss = focal_loss(model(*[s[k] for k in INPUT_NAMES]), s["labels"])
+            opt.zero_grad(); loss.backward(); opt.step(); sched.step()
+            total += float(loss)
+        model.eval()
+        report = {d.rstrip("/").split("/")[-1]: metrics(model, v, a.tau) for d, v in val.items()}
+        print(f"epoch {epoch}: loss {total / len(train):.4f} ({time.time() - t0:.0f}s) " + json.dumps(report), flush=True)
+        export(model, train[0], a.out)  # every epoch: a usable model at any time
+        print("wrote", a.out, flush=True)
+
+
+if __name__ == "__main__":
+    main()
