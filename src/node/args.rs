@@ -24,21 +24,30 @@ pub struct NodeParams {
     /// Parts whose `header.stamp` differ by at most this are joined into one frame
     /// (0 = exact match, as in bags).
     pub stamp_tolerance_ns: i64,
-    /// Broadcast `map → <camera frame>` on `/tf`.
+    /// Broadcast `map → <camera frame>` on `/tf` (or `map → odom_frame`, see there).
     pub publish_tf: bool,
+    /// When set, broadcast `map → odom_frame` = (map→camera) · (odom→camera)⁻¹ instead, with
+    /// `odom_frame → <camera frame>` (direct, or through one frame) heard on `tf_topic` /
+    /// `tf_static_topic`; a frame without it publishes no TF (counted). Empty: off.
+    pub odom_frame: String,
     /// Drop frames (counted, reason `no_map`) until a map has arrived.
     pub require_map: bool,
     /// Wait for the depth prior before localizing a frame (only with a rejector that uses it).
     pub expect_depth_prior: bool,
     /// Period of the aggregated `/diagnostics` message.
     pub diagnostics_period_ms: u64,
-    /// Publish `debug_image_topic`: the camera image with kept correspondences green and
-    /// rejected ones red (subscribes to the image topic and waits for it).
+    /// Publish `debug_image_topic` (sensor_msgs/Image rgb8): the camera image with kept
+    /// correspondences green and rejected ones red. Subscribes to the compressed image topic
+    /// (`topics.image`) and to `image_raw_topic` (sensor_msgs/Image rgb8, bgr8, mono8, rgba8,
+    /// bgra8), and waits for one of them.
     pub debug_image: bool,
     pub debug_image_topic: String,
+    pub image_raw_topic: String,
     /// Output topics that are not in the topic map.
     pub diagnostics_topic: String,
     pub tf_topic: String,
+    /// Static transforms, read with `odom_frame` set.
+    pub tf_static_topic: String,
 }
 
 impl Default for NodeParams {
@@ -48,13 +57,16 @@ impl Default for NodeParams {
             frame_timeout_ms: 500,
             stamp_tolerance_ns: 0,
             publish_tf: true,
+            odom_frame: String::new(),
             require_map: true,
             expect_depth_prior: true,
             diagnostics_period_ms: 1000,
             debug_image: false,
             debug_image_topic: "/angle_i2p/debug_image".into(),
+            image_raw_topic: "/camera/image_raw".into(),
             diagnostics_topic: "/diagnostics".into(),
             tf_topic: "/tf".into(),
+            tf_static_topic: "/tf_static".into(),
         }
     }
 }
@@ -252,13 +264,16 @@ const NODE_KEYS: &[&str] = &[
     "frame_timeout_ms",
     "stamp_tolerance_ns",
     "publish_tf",
+    "odom_frame",
     "require_map",
     "expect_depth_prior",
     "diagnostics_period_ms",
     "debug_image",
     "debug_image_topic",
+    "image_raw_topic",
     "diagnostics_topic",
     "tf_topic",
+    "tf_static_topic",
 ];
 
 /// Resolves parameters: defaults < `params_file` < `--ros-args --params-file` (in order) <

@@ -18,6 +18,10 @@ const LATENCY_WINDOW: usize = 100;
 #[derive(Debug)]
 pub struct Stats {
     started: Instant,
+    /// Frames heard of: stamps whose first part arrived. Each ends up localized, failed or
+    /// dropped (all counted), unless still waiting or in flight.
+    pub frames_received: u64,
+    /// Frames assembled (before the map check and the queue).
     pub frames_in: u64,
     pub frames_localized: u64,
     pub frames_failed: u64,
@@ -40,6 +44,7 @@ impl Default for Stats {
         let now = Instant::now();
         Self {
             started: now,
+            frames_received: 0,
             frames_in: 0,
             frames_localized: 0,
             frames_failed: 0,
@@ -105,6 +110,7 @@ impl Stats {
         let proc_: Vec<f64> = self.processing_ms.iter().copied().collect();
         let mut values = vec![
             ("uptime_s", format!("{:.1}", now.duration_since(self.started).as_secs_f64())),
+            ("frames_received", self.frames_received.to_string()),
             ("frames_in", self.frames_in.to_string()),
             ("frames_localized", self.frames_localized.to_string()),
             ("frames_failed", self.frames_failed.to_string()),

@@ -17,8 +17,10 @@
 pub mod args;
 pub mod dds;
 pub mod diagnostics;
+pub mod image;
 pub mod queue;
 mod run;
+pub mod tf;
 
 pub use args::{resolve_params, ArgsError, Names, NodeParams, ResolvedParams, RosArgs};
 pub use diagnostics::{status_value, Stats, NODE_STATUS_NAME};
@@ -37,7 +39,8 @@ pub struct NodeConfig {
     pub params_file: Option<PathBuf>,
     /// The `--ros-args …` tokens (starting with `--ros-args`), or empty.
     pub ros_args: Vec<String>,
-    /// Also write everything published to this new bag.
+    /// Also write everything published to this new bag, plus `replay`'s per-frame status on
+    /// `/diagnostics` ([`crate::app::localization_diagnostics`]), so `eval` reports ms/frame.
     pub record: Option<PathBuf>,
 }
 

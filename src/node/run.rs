@@ -3,6 +3,7 @@
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -14,7 +15,9 @@ use tokio::sync::mpsc;
 use super::args::{Names, NodeParams, ResolvedParams};
 use super::dds;
 use super::diagnostics::Stats;
+use super::image as img;
 use super::queue::DropOldestQueue;
+use super::tf::{self, TfBuffer};
 use crate::bag::BagWriter;
 use crate::frame::{Assembled, Frame, FrameAssembler, FramePart, IncompleteFrame, MapCloud, PartKind, Stamp};
 use crate::msgs::{self, convert, RosMessage};
@@ -25,6 +28,7 @@ use crate::pipeline::{Localization, Localizer, Method};
 pub struct Topics {
     pub camera_info: String,
     pub image: String,
+    pub image_raw: String,
     pub depth_prior: String,
     pub correspondences: String,
     pub map: String,
@@ -33,6 +37,7 @@ pub struct Topics {
     pub output_correspondences: String,
     pub diagnostics: String,
     pub tf: String,
+    pub tf_static: String,
     pub debug_image: String,
 }
 
@@ -42,6 +47,7 @@ impl Topics {
         Self {
             camera_info: names.resolve(&t.camera_info),
             image: names.resolve(&t.image),
+            image_raw: names.resolve(&n.image_raw_topic),
             depth_prior: names.resolve(&t.depth_prior),
             correspondences: names.resolve(&t.correspondences),
             map: names.resolve(&t.map),
@@ -50,6 +56,7 @@ impl Topics {
             output_correspondences: names.resolve(&t.output_correspondences),
             diagnostics: names.resolve(&n.diagnostics_topic),
             tf: names.resolve(&n.tf_topic),
+            tf_static: names.resolve(&n.tf_static_topic),
             debug_image: names.resolve(&n.debug_image_topic),
         }
     }
@@ -80,6 +87,11 @@ enum Input {
     ReadError {
         topic: String,
         reason: String,
+    },
+    /// A message outside frames (e.g. a transform) was unusable: counted under `reason`.
+    Invalid {
+        reason: &'static str,
+        detail: String,
     },
 }
 
@@ -115,11 +127,14 @@ fn lock(stats: &Mutex<Stats>) -> std::sync::MutexGuard<'_, Stats> {
 struct Job {
     frame: Frame,
     arrived: Instant,
+    /// A map that arrived since the previous job: the worker's localizer takes it first.
+    new_map: Option<Arc<MapCloud>>,
 }
 
-/// Spawns a reader thread that drains `sub`, converting each message with `convert`.
-/// (ros2-client's sample streams are not `Send`, so each reader gets its own small thread;
-/// it only decodes and converts, and ends when the ingest side is gone.)
+/// Spawns a reader thread that drains `sub`, converting each message with `convert` (`None`:
+/// nothing for the ingest task). (ros2-client's sample streams are not `Send`, so each reader
+/// gets its own small thread; it only decodes and converts, and ends when the ingest side is
+/// gone.)
 fn spawn_reader<M, F>(
     sub: Subscription<M>,
     topic: String,
@@ -128,7 +143,7 @@ fn spawn_reader<M, F>(
 ) -> Result<std::thread::JoinHandle<()>>
 where
     M: RosMessage + Send + 'static,
-    F: Fn(M) -> Input + Send + 'static,
+    F: Fn(M) -> Option<Input> + Send + 'static,
 {
     std::thread::Builder::new()
         .name(format!("reader {topic}"))
@@ -139,8 +154,9 @@ where
                 while let Some(r) = stream.next().await {
                     let input = match r {
                         Ok((msg, _info)) => convert(msg),
-                        Err(e) => Input::ReadError { topic: topic.clone(), reason: format!("{e:?}") },
+                        Err(e) => Some(Input::ReadError { topic: topic.clone(), reason: format!("{e:?}") }),
                     };
+                    let Some(input) = input else { continue };
                     if tx.send(input).await.is_err() {
                         break;
                     }
@@ -150,11 +166,47 @@ where
         .with_context(|| "spawning a reader thread".to_string())
 }
 
-fn part_or_error(kind: PartKind, stamp: Stamp, r: Result<FramePart, msgs::MsgError>) -> Input {
-    match r {
+fn part_or_error<E: std::fmt::Display>(kind: PartKind, stamp: Stamp, r: Result<FramePart, E>) -> Option<Input> {
+    Some(match r {
         Ok(p) => Input::Part(p),
         Err(e) => Input::PartError { kind, stamp, reason: e.to_string() },
+    })
+}
+
+/// Which image topic feeds the frames: the first that delivers wins, the other is then
+/// ignored (cameras often publish both raw and compressed; one image per frame is enough).
+#[derive(Clone, Default)]
+struct ImageSource(Arc<AtomicU8>);
+
+impl ImageSource {
+    const COMPRESSED: u8 = 1;
+    const RAW: u8 = 2;
+
+    /// True when images of `source` are used (claiming the slot if it is free).
+    fn accept(&self, source: u8, topic: &str) -> bool {
+        match self.0.compare_exchange(0, source, Ordering::AcqRel, Ordering::Acquire) {
+            Ok(_) => {
+                log(format!("camera images from {topic}"));
+                true
+            }
+            Err(current) => current == source,
+        }
     }
+}
+
+/// A camera image message → the frame's image part (decoded to RGB here, in the reader).
+fn image_part(
+    source: &ImageSource,
+    which: u8,
+    topic: &str,
+    header: &msgs::Header,
+    rgb: impl FnOnce() -> Result<image::RgbImage, String>,
+) -> Option<Input> {
+    if !source.accept(which, topic) {
+        return None;
+    }
+    let stamp = convert::stamp(header);
+    part_or_error(PartKind::Image, stamp, rgb().map(|rgb| FramePart::Image { stamp, image: img::to_encoded(rgb) }))
 }
 
 /// `part` with its stamp replaced (stamp-tolerant matching).
@@ -179,7 +231,9 @@ struct Ingest {
     tolerance_ns: i64,
     timeout: Duration,
     require_map: bool,
-    map: Option<MapCloud>,
+    map: Option<Arc<MapCloud>>,
+    /// The map changed since the last queued job.
+    map_changed: bool,
     queue: Arc<DropOldestQueue<Job>>,
     stats: Arc<Mutex<Stats>>,
 }
@@ -199,7 +253,7 @@ impl Ingest {
         match input {
             Input::Part(part) => {
                 let stamp = self.snap(part.stamp());
-                self.pending.entry(stamp).or_insert_with(Instant::now);
+                self.open(stamp);
                 let done = self.assembler.push(restamp(part, stamp));
                 self.handle(done);
             }
@@ -208,7 +262,7 @@ impl Ingest {
                 log(format!("frame {stamp}: bad {}: {reason}", kind.name()));
                 lock(&self.stats)
                     .error(&format!("invalid_{}", kind.name()), format!("frame {stamp}: {}: {reason}", kind.name()));
-                self.pending.entry(stamp).or_insert_with(Instant::now);
+                self.open(stamp);
                 let done = self.assembler.push_error(stamp, kind, format!("{reason} (counted)"));
                 self.handle(done);
             }
@@ -217,7 +271,8 @@ impl Ingest {
                 let mut s = lock(&self.stats);
                 s.maps_received += 1;
                 s.map_points = map.points.len();
-                self.map = Some(map);
+                self.map = Some(Arc::new(map));
+                self.map_changed = true;
             }
             Input::Map(Err(reason)) => {
                 log(format!("bad map (kept the previous one): {reason}"));
@@ -227,6 +282,19 @@ impl Ingest {
                 log(format!("{topic}: undecodable message: {reason}"));
                 lock(&self.stats).error("undecodable_message", format!("{topic}: {reason}"));
             }
+            Input::Invalid { reason, detail } => {
+                log(&detail);
+                lock(&self.stats).error(reason, detail);
+            }
+        }
+    }
+
+    /// Notes the first part of a frame (a stamp not waiting yet): every such frame is later
+    /// localized, failed or dropped, each counted.
+    fn open(&mut self, stamp: Stamp) {
+        if let std::collections::btree_map::Entry::Vacant(e) = self.pending.entry(stamp) {
+            e.insert(Instant::now());
+            lock(&self.stats).frames_received += 1;
         }
     }
 
@@ -293,7 +361,9 @@ impl Ingest {
             }
         }
         drop(s);
-        let dropped = self.queue.push(Job { frame, arrived });
+        let new_map = if self.map_changed { self.map.clone() } else { None };
+        self.map_changed = false;
+        let dropped = self.queue.push(Job { frame, arrived, new_map });
         let mut stats = lock(&self.stats);
         stats.queued_max = stats.queued_max.max(self.queue.len());
         if let Some(old) = dropped {
@@ -311,6 +381,8 @@ struct Outputs {
     pose_cov: Publisher<msgs::PoseWithCovarianceStamped>,
     kept: Publisher<msgs::Correspondences>,
     tf: Option<Publisher<msgs::TFMessage>>,
+    /// With `node.odom_frame` set: that frame and the transforms heard on /tf.
+    odom: Option<(String, Arc<Mutex<TfBuffer>>)>,
     debug: Option<Publisher<msgs::Image>>,
     recorder: Recorder,
     stats: Arc<Mutex<Stats>>,
@@ -336,7 +408,13 @@ impl Outputs {
                 self.send(&self.pose_cov, &topics.pose_with_covariance, m).await;
             }
             if let Some(tf) = &self.tf {
-                self.send(tf, &topics.tf, tf_message(loc, pose)).await;
+                match self.tf_message(loc, pose) {
+                    Ok(msg) => self.send(tf, &topics.tf, msg).await,
+                    Err(detail) => {
+                        log(&detail);
+                        lock(&self.stats).error("no_odom_transform", detail);
+                    }
+                }
             }
         }
         let kept = convert::correspondences_msg(t, &loc.camera_frame_id, &loc.map_frame_id, &loc.kept);
@@ -347,21 +425,24 @@ impl Outputs {
                 Err(e) => lock(&self.stats).error("debug_image", format!("frame {t}: {e}")),
             }
         }
+        // The recording also gets the per-frame status `replay` writes (timings for `eval`).
+        self.recorder.write(crate::app::DIAGNOSTICS_TOPIC, &crate::app::localization_diagnostics(loc), &self.stats);
     }
-}
 
-/// TF `map_frame → camera_frame` = the camera-to-map pose.
-fn tf_message(loc: &Localization, pose: &nalgebra::Isometry3<f64>) -> msgs::TFMessage {
-    let p = convert::pose_from_isometry(pose);
-    msgs::TFMessage {
-        transforms: vec![msgs::TransformStamped {
-            header: msgs::Header::new(loc.stamp, loc.map_frame_id.as_str()),
-            child_frame_id: loc.camera_frame_id.clone(),
-            transform: msgs::Transform {
-                translation: msgs::Vector3 { x: p.position.x, y: p.position.y, z: p.position.z },
-                rotation: p.orientation,
-            },
-        }],
+    /// TF of a localized frame: `map → camera`, or `map → odom` when an odom frame is set
+    /// (an error naming what is missing when odom → camera is unknown).
+    fn tf_message(&self, loc: &Localization, pose: &nalgebra::Isometry3<f64>) -> Result<msgs::TFMessage, String> {
+        let Some((odom, buffer)) = &self.odom else {
+            return Ok(tf::tf_message(loc.stamp, &loc.map_frame_id, &loc.camera_frame_id, pose));
+        };
+        let odom_camera = buffer.lock().unwrap_or_else(|p| p.into_inner()).lookup(odom, &loc.camera_frame_id);
+        let odom_camera = odom_camera.ok_or_else(|| {
+            format!(
+                "frame {}: no transform {odom} → {} on {} yet; no TF published",
+                loc.stamp, loc.camera_frame_id, self.topics.tf
+            )
+        })?;
+        Ok(tf::tf_message(loc.stamp, &loc.map_frame_id, odom, &tf::map_to_odom(pose, &odom_camera)))
     }
 }
 
@@ -369,40 +450,9 @@ fn tf_message(loc: &Localization, pose: &nalgebra::Isometry3<f64>) -> msgs::TFMe
 /// 5×5 squares.
 fn debug_image(frame: &Frame, loc: &Localization) -> Result<msgs::Image> {
     let enc = frame.image.as_ref().ok_or_else(|| anyhow!("no camera image for this frame"))?;
-    let mut img = image::load_from_memory(&enc.data).context("decoding the camera image")?.to_rgb8();
-    let (w, h) = img.dimensions();
-    let mut dot = |u: f64, v: f64, rgb: [u8; 3]| {
-        if !(u.is_finite() && v.is_finite()) {
-            return;
-        }
-        let (cu, cv) = (u.round() as i64, v.round() as i64);
-        for y in cv - 2..=cv + 2 {
-            for x in cu - 2..=cu + 2 {
-                if x >= 0 && y >= 0 && (x as u32) < w && (y as u32) < h {
-                    img.put_pixel(x as u32, y as u32, image::Rgb(rgb));
-                }
-            }
-        }
-    };
-    let kept: std::collections::HashSet<(u64, u64)> =
-        loc.kept.iter().map(|c| (c.pixel.x.to_bits(), c.pixel.y.to_bits())).collect();
-    for c in &frame.correspondences {
-        if !kept.contains(&(c.pixel.x.to_bits(), c.pixel.y.to_bits())) {
-            dot(c.pixel.x, c.pixel.y, [255, 0, 0]);
-        }
-    }
-    for c in &loc.kept {
-        dot(c.pixel.x, c.pixel.y, [0, 255, 0]);
-    }
-    Ok(msgs::Image {
-        header: msgs::Header::new(loc.stamp, loc.camera_frame_id.as_str()),
-        height: h,
-        width: w,
-        encoding: "rgb8".into(),
-        is_bigendian: 0,
-        step: w * 3,
-        data: img.into_raw(),
-    })
+    let mut rgb = img::from_encoded(enc).map_err(|e| anyhow!(e))?;
+    img::draw_matches(&mut rgb, &frame.correspondences, &loc.kept);
+    Ok(img::image_msg(loc.stamp, &loc.camera_frame_id, rgb))
 }
 
 /// Runs `localizer` on `frame` on the blocking pool; a panic becomes a counted failure and a
@@ -435,14 +485,25 @@ fn dummy_frame() -> Frame {
 }
 
 async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outputs: Outputs) {
+    let mut map: Option<Arc<MapCloud>> = None;
     while let Some(job) = queue.pop().await {
+        if let Some(new) = job.new_map {
+            localizer.set_map(&new);
+            map = Some(new);
+        }
         let stamp = job.frame.stamp;
         let (back, frame, loc) = localize(localizer, job.frame).await;
         localizer = back;
         let Some(loc) = loc else {
             log(format!("frame {stamp}: the localizer panicked; continuing with a fresh one"));
-            lock(&outputs.stats).error("panic", format!("frame {stamp}: localizer panicked"));
+            let mut s = lock(&outputs.stats);
+            s.frames_failed += 1;
+            s.error("panic", format!("frame {stamp}: localizer panicked"));
+            drop(s);
             localizer = Localizer::new(localizer.params().clone());
+            if let Some(m) = &map {
+                localizer.set_map(m);
+            }
             continue;
         };
         outputs.publish(&loc, &frame).await;
@@ -494,6 +555,8 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
     let mut node = dds::node(&context, &names.namespace, &names.node_name)?;
     let spinner = dds::spawn_spinner(&mut node)?;
     let stats = Arc::new(Mutex::new(Stats::default()));
+    let odom_frame = np.odom_frame.trim().trim_start_matches('/').to_string();
+    let tf_buffer = (np.publish_tf && !odom_frame.is_empty()).then(|| Arc::new(Mutex::new(TfBuffer::default())));
 
     // Outputs.
     let out_qos = dds::reliable(10);
@@ -502,6 +565,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         pose_cov: dds::publisher(&mut node, &topics.pose_with_covariance, &out_qos)?,
         kept: dds::publisher(&mut node, &topics.output_correspondences, &out_qos)?,
         tf: if np.publish_tf { Some(dds::publisher(&mut node, &topics.tf, &dds::reliable(100))?) } else { None },
+        odom: tf_buffer.clone().map(|b| (odom_frame.clone(), b)),
         debug: if np.debug_image {
             Some(dds::publisher(&mut node, &topics.debug_image, &dds::sensor_data(5))?)
         } else {
@@ -516,7 +580,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
 
     // Inputs: what a frame waits for.
     let mut expected = vec![PartKind::CameraInfo, PartKind::Correspondences];
-    let wants_prior = np.expect_depth_prior && params.method == Method::Consistency;
+    let wants_prior = np.expect_depth_prior && params.method != Method::Ransac;
     if wants_prior {
         expected.push(PartKind::DepthPrior);
     }
@@ -565,23 +629,50 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         )?);
     }
     if np.debug_image {
+        let source = ImageSource::default();
+        let (src, topic) = (source.clone(), topics.image.clone());
         readers.push(spawn_reader(
             dds::subscription::<msgs::CompressedImage>(&mut node, &topics.image, &sensor)?,
             topics.image.clone(),
             tx.clone(),
-            |m| Input::Part(FramePart::Image { stamp: convert::stamp(&m.header), image: convert::encoded_image(&m) }),
+            move |m| image_part(&src, ImageSource::COMPRESSED, &topic, &m.header, || img::rgb_from_compressed(&m)),
+        )?);
+        let (src, topic) = (source, topics.image_raw.clone());
+        readers.push(spawn_reader(
+            dds::subscription::<msgs::Image>(&mut node, &topics.image_raw, &sensor)?,
+            topics.image_raw.clone(),
+            tx.clone(),
+            move |m| image_part(&src, ImageSource::RAW, &topic, &m.header, || img::rgb_from_image(&m)),
         )?);
     }
     readers.push(spawn_reader(
         dds::subscription::<msgs::PointCloud2>(&mut node, &topics.map, &dds::latched())?,
         topics.map.clone(),
         tx.clone(),
-        |m| Input::Map(convert::map_cloud_from_point_cloud(&m).map_err(|e| e.to_string())),
+        |m| Some(Input::Map(convert::map_cloud_from_point_cloud(&m).map_err(|e| e.to_string()))),
     )?);
+    if let Some(buffer) = &tf_buffer {
+        for (topic, qos) in [(&topics.tf, dds::reliable(100)), (&topics.tf_static, dds::latched())] {
+            let buffer = buffer.clone();
+            readers.push(spawn_reader(
+                dds::subscription::<msgs::TFMessage>(&mut node, topic, &qos)?,
+                topic.clone(),
+                tx.clone(),
+                move |m| {
+                    let bad = buffer.lock().unwrap_or_else(|p| p.into_inner()).update(&m);
+                    (!bad.is_empty()).then(|| Input::Invalid { reason: "invalid_transform", detail: bad.join("; ") })
+                },
+            )?);
+        }
+    }
     drop(tx);
 
+    let localizer = Localizer::new(params.clone());
+    if let Some(e) = localizer.setup_error() {
+        anyhow::bail!("method {}: {e}", params.method.name());
+    }
     let queue = Arc::new(DropOldestQueue::new(np.queue_depth));
-    let worker_task = tokio::spawn(worker(queue.clone(), Localizer::new(params.clone()), outputs));
+    let worker_task = tokio::spawn(worker(queue.clone(), localizer, outputs));
 
     let mut ingest = Ingest {
         assembler: FrameAssembler::new(&expected),
@@ -590,6 +681,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         timeout: Duration::from_millis(np.frame_timeout_ms),
         require_map: np.require_map,
         map: None,
+        map_changed: false,
         queue: queue.clone(),
         stats: stats.clone(),
     };
@@ -604,12 +696,16 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         topics.camera_info,
         topics.correspondences,
         if wants_prior { topics.depth_prior.as_str() } else { "" },
-        if np.debug_image { format!(" {}", topics.image) } else { String::new() },
+        if np.debug_image { format!(" {}|{}", topics.image, topics.image_raw) } else { String::new() },
         topics.map,
         topics.pose,
         topics.pose_with_covariance,
         topics.output_correspondences,
-        if np.publish_tf { format!(" {}", topics.tf) } else { String::new() },
+        match (np.publish_tf, odom_frame.is_empty()) {
+            (false, _) => String::new(),
+            (true, true) => format!(" {} (map → camera)", topics.tf),
+            (true, false) => format!(" {} (map → {odom_frame}, reading {} {})", topics.tf, topics.tf, topics.tf_static),
+        },
         topics.diagnostics,
     ));
 
@@ -678,6 +774,7 @@ mod tests {
             timeout: Duration::from_millis(timeout_ms),
             require_map,
             map: None,
+            map_changed: false,
             queue: Arc::new(DropOldestQueue::new(2)),
             stats: Arc::new(Mutex::new(Stats::default())),
         }
@@ -744,5 +841,8 @@ mod tests {
         assert_eq!(s.drop_count("missing_camera_info"), 1);
         assert_eq!(s.error_count("invalid_correspondences"), 1);
         assert_eq!(s.frames_in, 5);
+        // Every frame heard of: dropped (with a reason) or waiting in the queue.
+        assert_eq!(s.frames_received, 7);
+        assert_eq!(s.frames_received, s.drops.values().sum::<u64>() + i.queue.len() as u64);
     }
 }
