@@ -1,7 +1,8 @@
 //! Per-frame cost of each stage at N = 400, 1000, 2000 correspondences (synthetic "hard" tier:
 //! ~15 % inliers, half moved patch-wise): the consistency matrices (angle, distance), the
 //! scale-and-shift alignment, the spectral scorer, and the whole frame with consistency
-//! rejection vs plain LO-RANSAC measured in the same run.
+//! rejection, the learned rejector (when ONNX Runtime is there: `make ort`) and plain LO-RANSAC,
+//! measured in the same run.
 //!
 //! `cargo bench --bench pipeline`
 
@@ -16,10 +17,11 @@ use angle_i2p::reject::{FrameGeometry, Rejector, SpectralRejector};
 use angle_i2p::synth::{generate, SynthConfig};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 
-fn frames(n: usize) -> Vec<angle_i2p::frame::Frame> {
+fn scene(n: usize) -> (Vec<angle_i2p::frame::Frame>, angle_i2p::frame::MapCloud) {
     let config =
         SynthConfig { frames: 3, correspondences: n, seed: 42, ..SynthConfig::preset("hard").expect("preset") };
-    generate(&config).frames
+    let scene = generate(&config);
+    (scene.frames, scene.map)
 }
 
 fn bench(c: &mut Criterion) {
@@ -27,7 +29,8 @@ fn bench(c: &mut Criterion) {
     group.sample_size(20).measurement_time(Duration::from_secs(3)).warm_up_time(Duration::from_millis(500));
     let align = ScaleShiftParams::default();
     for n in [400usize, 1000, 2000] {
-        let frames = frames(n);
+        let (frames, map) = scene(n);
+        let map = Some(map);
         let frame = &frames[1];
         let geometry = FrameGeometry::build(frame, DepthKind::Depth, Some(&align));
         let mut theta = ConsistencyMatrix::default();
@@ -44,8 +47,15 @@ fn bench(c: &mut Criterion) {
         group.bench_with_input(BenchmarkId::new("spectral_scorer", n), &geometry, |b, g| {
             b.iter(|| scorer.reject(black_box(g)).expect("scores"))
         });
-        for method in [Method::Ransac, Method::Consistency] {
+        for method in [Method::Ransac, Method::Consistency, Method::AngleI2p] {
             let mut localizer = Localizer::new(Params { method, ..Params::default() });
+            if let Some(e) = localizer.setup_error() {
+                eprintln!("skipping {}: {e}", method.name());
+                continue;
+            }
+            if let Some(map) = &map {
+                localizer.set_map(map);
+            }
             group.bench_with_input(BenchmarkId::new(format!("localize_{}", method.name()), n), frame, |b, f| {
                 b.iter(|| localizer.process(black_box(f)))
             });
