@@ -291,6 +291,20 @@ pub(crate) fn finite_pairs(
     (px, pw, orig)
 }
 
+/// The finite correspondences of a non-minimal problem, after the basic checks; at least 4.
+pub(crate) fn checked_pairs(
+    intrinsics: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+) -> Result<(Vec<Vector2<f64>>, Vec<Vector3<f64>>), PnpError> {
+    check_basic(intrinsics, pixels.len(), points.len())?;
+    let (px, pw, _) = finite_pairs(pixels, points);
+    if px.len() < 4 {
+        return Err(PnpError::TooFewPoints { usable: px.len(), required: 4 });
+    }
+    Ok((px, pw))
+}
+
 pub(crate) fn check_basic(intrinsics: &Intrinsics, pixels: usize, points: usize) -> Result<(), PnpError> {
     if !intrinsics.is_valid() {
         return Err(PnpError::InvalidIntrinsics);
@@ -311,11 +325,7 @@ pub fn refine_pose(
     initial: &Isometry3<f64>,
     options: &RefineOptions,
 ) -> Result<RefineResult, PnpError> {
-    check_basic(intrinsics, pixels.len(), points.len())?;
-    let (px, pw, _) = finite_pairs(pixels, points);
-    if px.len() < 4 {
-        return Err(PnpError::TooFewPoints { usable: px.len(), required: 4 });
-    }
+    let (px, pw) = checked_pairs(intrinsics, pixels, points)?;
     let start = MapToCamera::from_camera_to_map(initial);
     if !start.is_finite() {
         return Err(PnpError::InvalidParams("non-finite initial pose"));

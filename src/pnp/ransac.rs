@@ -7,8 +7,8 @@
 
 use super::epnp::epnp_normalized;
 use super::lm::{
-    check_basic, covariance, finite_pairs, lm_refine, refine_all, reproj_err2, Cam, Loss, RefineOptions, RefineResult,
-    MIN_DEPTH,
+    check_basic, checked_pairs, covariance, finite_pairs, lm_refine, refine_all, reproj_err2, Cam, Loss, RefineOptions,
+    RefineResult, MIN_DEPTH,
 };
 use super::p3p::p3p_unit;
 use super::rng::WyRand;
@@ -477,11 +477,7 @@ pub fn solve_pnp_nonminimal(
     points: &[Point3<f64>],
     options: &RefineOptions,
 ) -> Result<RefineResult, PnpError> {
-    check_basic(intrinsics, pixels.len(), points.len())?;
-    let (px, pw, _) = finite_pairs(pixels, points);
-    if px.len() < 4 {
-        return Err(PnpError::TooFewPoints { usable: px.len(), required: 4 });
-    }
+    let (px, pw) = checked_pairs(intrinsics, pixels, points)?;
     let cam = Cam::new(intrinsics);
     let uv: Vec<Vector2<f64>> =
         px.iter().map(|p| Vector2::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy)).collect();
