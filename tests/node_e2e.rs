@@ -61,6 +61,12 @@ fn run_in_netns(inner: &str) {
 }
 
 /// Called by a namespaced body when it got to its end.
+/// The start of an inner test: it must run inside the namespace `via` made, on the test domain.
+fn enter_netns(via: &str) {
+    assert!(std::env::var_os(IN_NETNS).is_some(), "run via {via}");
+    std::env::set_var("ROS_DOMAIN_ID", DOMAIN);
+}
+
 fn mark_done() {
     if let Some(p) = std::env::var_os(DONE_MARKER) {
         std::fs::write(p, "ok").expect("marker");
@@ -241,7 +247,7 @@ fn live_bad_input_is_counted_and_the_node_keeps_going() {
 #[test]
 #[ignore = "runs inside a network namespace, via live_pose_matches_replay_over_dds"]
 fn inner_live_pose_matches_replay() {
-    assert!(std::env::var_os(IN_NETNS).is_some(), "run via live_pose_matches_replay_over_dds");
+    enter_netns("live_pose_matches_replay_over_dds");
     let Some(py) = python() else {
         skip_or_fail("no Python venv (.venv) with cyclonedds");
         mark_done();
@@ -331,8 +337,7 @@ fn inner_live_pose_matches_replay() {
 #[test]
 #[ignore = "runs inside a network namespace, via live_bad_input_is_counted_and_the_node_keeps_going"]
 fn inner_bad_input() {
-    assert!(std::env::var_os(IN_NETNS).is_some(), "run via live_bad_input_is_counted_and_the_node_keeps_going");
-    std::env::set_var("ROS_DOMAIN_ID", DOMAIN);
+    enter_netns("live_bad_input_is_counted_and_the_node_keeps_going");
     let input = read_frames(bag(), &TopicMap::default()).expect("read bag");
     let map = input.map.clone().expect("map");
     let mut localizer = Localizer::new(Params::default());
@@ -346,41 +351,21 @@ fn inner_bad_input() {
     );
 
     let context = dds::context().expect("context");
-    let mut ros = dds::node(&context, "/", "bad_input_test").expect("node");
-    let _spinner = dds::spawn_spinner(&mut ros).expect("spinner");
-    let t = TopicMap::default();
-    let info_pub = dds::publisher::<msgs::CameraInfo>(&mut ros, &t.camera_info, &dds::reliable(10)).expect("pub");
-    let corr_pub =
-        dds::publisher::<msgs::Correspondences>(&mut ros, &t.correspondences, &dds::reliable(10)).expect("pub");
-    let prior_pub = dds::publisher::<msgs::Image>(&mut ros, &t.depth_prior, &dds::reliable(10)).expect("pub");
-    let map_pub = dds::publisher::<msgs::PointCloud2>(&mut ros, &t.map, &dds::latched()).expect("pub");
-    let diag_sub =
-        dds::subscription::<msgs::DiagnosticArray>(&mut ros, "/diagnostics", &dds::reliable(50)).expect("sub");
-    let pose_sub = dds::subscription::<msgs::PoseStamped>(&mut ros, &t.pose, &dds::reliable(50)).expect("sub");
-
-    let matched_by = Instant::now() + Duration::from_secs(30);
-    while [
-        info_pub.get_subscription_count(&ros),
-        corr_pub.get_subscription_count(&ros),
-        prior_pub.get_subscription_count(&ros),
-    ]
-    .contains(&0)
-    {
-        assert!(Instant::now() < matched_by, "the node's readers never matched\n{}", node_log(tmp.path()));
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    std::thread::sleep(Duration::from_millis(300));
+    let mut wire = FramePublisher::new(&context, "bad_input_test");
+    let pose_sub = dds::subscription::<msgs::PoseStamped>(&mut wire.ros, &TopicMap::default().pose, &dds::reliable(50))
+        .expect("sub");
+    wire.wait_matched(|_| Vec::new(), tmp.path());
 
     let publish = |stamp: i64, info: bool, corr: Option<msgs::Correspondences>, prior: Option<msgs::Image>| {
         let cam = good.camera_frame_id.as_str();
         if info {
-            info_pub.publish(convert::camera_info(stamp, cam, &good.intrinsics)).expect("publish info");
+            wire.info.publish(convert::camera_info(stamp, cam, &good.intrinsics)).expect("publish info");
         }
         if let Some(p) = prior {
-            prior_pub.publish(p).expect("publish prior");
+            wire.prior.publish(p).expect("publish prior");
         }
         if let Some(c) = corr {
-            corr_pub.publish(c).expect("publish corr");
+            wire.corr.publish(c).expect("publish corr");
         }
     };
     let good_corr = |stamp: i64| {
@@ -394,7 +379,7 @@ fn inner_bad_input() {
     let mut wait_diag = |key: &str, ok: &dyn Fn(u64) -> bool| -> u64 {
         let end = Instant::now() + Duration::from_secs(20);
         loop {
-            while let Ok(Some((d, _))) = diag_sub.take() {
+            while let Ok(Some((d, _))) = wire.diag.take() {
                 last_diag = Some(d);
             }
             let v = last_diag.as_ref().and_then(|d| status_value(d, key)).and_then(|v| v.parse().ok()).unwrap_or(0);
@@ -412,7 +397,7 @@ fn inner_bad_input() {
     publish(s(1), true, Some(good_corr(s(1))), Some(good_prior(s(1))));
     wait_diag("dropped.no_map", &|v| v == 1);
     // The map arrives (latched).
-    map_pub.publish(convert::point_cloud(s(0), &map)).expect("publish map");
+    wire.map.publish(convert::point_cloud(s(0), &map)).expect("publish map");
     wait_diag("maps_received", &|v| v == 1);
     // 2. No camera info for this frame: times out, dropped.
     publish(s(2), false, Some(good_corr(s(2))), Some(good_prior(s(2))));
@@ -478,6 +463,55 @@ fn live_raw_image_and_odom_tf() {
 }
 
 /// A numeric value of the node's diagnostics (0 when absent).
+/// The test's own DDS participant publishing one frame's parts to the node, as a camera, a
+/// depth network and a matcher would, and hearing its diagnostics.
+struct FramePublisher {
+    ros: ros2_client::Node,
+    _spinner: std::thread::JoinHandle<()>,
+    info: ros2_client::Publisher<msgs::CameraInfo>,
+    corr: ros2_client::Publisher<msgs::Correspondences>,
+    prior: ros2_client::Publisher<msgs::Image>,
+    map: ros2_client::Publisher<msgs::PointCloud2>,
+    diag: ros2_client::Subscription<msgs::DiagnosticArray>,
+}
+
+impl FramePublisher {
+    fn new(context: &ros2_client::Context, name: &str) -> Self {
+        let mut ros = dds::node(context, "/", name).expect("node");
+        let _spinner = dds::spawn_spinner(&mut ros).expect("spinner");
+        let t = TopicMap::default();
+        Self {
+            info: dds::publisher(&mut ros, &t.camera_info, &dds::reliable(10)).expect("pub"),
+            corr: dds::publisher(&mut ros, &t.correspondences, &dds::reliable(10)).expect("pub"),
+            prior: dds::publisher(&mut ros, &t.depth_prior, &dds::reliable(10)).expect("pub"),
+            map: dds::publisher(&mut ros, &t.map, &dds::latched()).expect("pub"),
+            diag: dds::subscription(&mut ros, "/diagnostics", &dds::reliable(50)).expect("sub"),
+            ros,
+            _spinner,
+        }
+    }
+
+    /// Waits (30 s at most) until the node's readers of the frame parts, and every count in
+    /// `also` (other endpoints' matches), are there; then a moment for the rest of discovery.
+    fn wait_matched(&self, also: impl Fn(&ros2_client::Node) -> Vec<usize>, log_dir: &Path) {
+        let by = Instant::now() + Duration::from_secs(30);
+        loop {
+            let mut counts = vec![
+                self.info.get_subscription_count(&self.ros),
+                self.corr.get_subscription_count(&self.ros),
+                self.prior.get_subscription_count(&self.ros),
+            ];
+            counts.extend(also(&self.ros));
+            if !counts.contains(&0) {
+                break;
+            }
+            assert!(Instant::now() < by, "the node's readers never matched\n{}", node_log(log_dir));
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        std::thread::sleep(Duration::from_millis(300));
+    }
+}
+
 fn diag(d: &msgs::DiagnosticArray, key: &str) -> u64 {
     status_value(d, key).and_then(|v| v.parse().ok()).unwrap_or(0)
 }
@@ -547,8 +581,7 @@ fn half_sent_bag(dir: &Path, k: usize) -> PathBuf {
 #[test]
 #[ignore = "runs inside a network namespace, via live_player_restart_loses_nothing"]
 fn inner_player_restart() {
-    assert!(std::env::var_os(IN_NETNS).is_some(), "run via live_player_restart_loses_nothing");
-    std::env::set_var("ROS_DOMAIN_ID", DOMAIN);
+    enter_netns("live_player_restart_loses_nothing");
     let Some(py) = python() else {
         skip_or_fail("no Python venv (.venv) with cyclonedds");
         mark_done();
@@ -692,8 +725,7 @@ fn inner_player_restart() {
 #[test]
 #[ignore = "runs inside a network namespace, via live_debug_image_per_frame"]
 fn inner_debug_image() {
-    assert!(std::env::var_os(IN_NETNS).is_some(), "run via live_debug_image_per_frame");
-    std::env::set_var("ROS_DOMAIN_ID", DOMAIN);
+    enter_netns("live_debug_image_per_frame");
     let input = read_frames(bag(), &TopicMap::default()).expect("read bag");
     let frames = &input.frames;
     assert!(frames.iter().all(|f| f.image.is_some()), "the synth bag carries an image per frame");
@@ -794,8 +826,7 @@ fn inner_debug_image() {
 #[test]
 #[ignore = "runs inside a network namespace, via live_raw_image_and_odom_tf"]
 fn inner_raw_image_and_odom_tf() {
-    assert!(std::env::var_os(IN_NETNS).is_some(), "run via live_raw_image_and_odom_tf");
-    std::env::set_var("ROS_DOMAIN_ID", DOMAIN);
+    enter_netns("live_raw_image_and_odom_tf");
     let input = read_frames(bag(), &TopicMap::default()).expect("read bag");
     let map = input.map.clone().expect("map");
     let mut localizer = Localizer::new(Params::default());
@@ -832,43 +863,29 @@ fn inner_raw_image_and_odom_tf() {
         None,
     );
     let context = dds::context().expect("context");
-    let mut ros = dds::node(&context, "/", "raw_image_test").expect("node");
-    let _spinner = dds::spawn_spinner(&mut ros).expect("spinner");
-    let t = TopicMap::default();
-    let info_pub = dds::publisher::<msgs::CameraInfo>(&mut ros, &t.camera_info, &dds::reliable(10)).expect("pub");
-    let corr_pub =
-        dds::publisher::<msgs::Correspondences>(&mut ros, &t.correspondences, &dds::reliable(10)).expect("pub");
-    let prior_pub = dds::publisher::<msgs::Image>(&mut ros, &t.depth_prior, &dds::reliable(10)).expect("pub");
-    let raw_pub = dds::publisher::<msgs::Image>(&mut ros, "/camera/image_raw", &dds::reliable(10)).expect("pub");
-    let map_pub = dds::publisher::<msgs::PointCloud2>(&mut ros, &t.map, &dds::latched()).expect("pub");
-    let tf_pub = dds::publisher::<msgs::TFMessage>(&mut ros, "/tf", &dds::reliable(100)).expect("pub");
-    let tf_sub = dds::subscription::<msgs::TFMessage>(&mut ros, "/tf", &dds::reliable(100)).expect("sub");
+    let mut wire = FramePublisher::new(&context, "raw_image_test");
+    let raw_pub = dds::publisher::<msgs::Image>(&mut wire.ros, "/camera/image_raw", &dds::reliable(10)).expect("pub");
+    let tf_pub = dds::publisher::<msgs::TFMessage>(&mut wire.ros, "/tf", &dds::reliable(100)).expect("pub");
+    let tf_sub = dds::subscription::<msgs::TFMessage>(&mut wire.ros, "/tf", &dds::reliable(100)).expect("sub");
     let debug_sub =
-        dds::subscription::<msgs::Image>(&mut ros, "/angle_i2p/debug_image", &dds::sensor_data(10)).expect("sub");
-    let diag_sub =
-        dds::subscription::<msgs::DiagnosticArray>(&mut ros, "/diagnostics", &dds::reliable(50)).expect("sub");
-    let end = Instant::now() + Duration::from_secs(30);
-    while [
-        info_pub.get_subscription_count(&ros),
-        corr_pub.get_subscription_count(&ros),
-        prior_pub.get_subscription_count(&ros),
-        raw_pub.get_subscription_count(&ros),
-        tf_pub.get_subscription_count(&ros),
-        debug_sub.get_publisher_count(&ros),
-    ]
-    .contains(&0)
-    {
-        assert!(Instant::now() < end, "the node never matched\n{}", node_log(tmp.path()));
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    std::thread::sleep(Duration::from_millis(300));
-    map_pub.publish(convert::point_cloud(good.stamp, &map)).expect("publish map");
-    wait_diag_until(&diag_sub, Instant::now(), tmp.path(), "map received", &|d| diag(d, "maps_received") == 1);
+        dds::subscription::<msgs::Image>(&mut wire.ros, "/angle_i2p/debug_image", &dds::sensor_data(10)).expect("sub");
+    wire.wait_matched(
+        |ros| {
+            vec![
+                raw_pub.get_subscription_count(ros),
+                tf_pub.get_subscription_count(ros),
+                debug_sub.get_publisher_count(ros),
+            ]
+        },
+        tmp.path(),
+    );
+    wire.map.publish(convert::point_cloud(good.stamp, &map)).expect("publish map");
+    wait_diag_until(&wire.diag, Instant::now(), tmp.path(), "map received", &|d| diag(d, "maps_received") == 1);
 
     let cam = good.camera_frame_id.as_str();
     let publish_frame = |stamp: i64| {
-        info_pub.publish(convert::camera_info(stamp, cam, &good.intrinsics)).expect("info");
-        prior_pub.publish(convert::image_32fc1(stamp, cam, good.depth_prior.as_ref().expect("prior"))).expect("prior");
+        wire.info.publish(convert::camera_info(stamp, cam, &good.intrinsics)).expect("info");
+        wire.prior.publish(convert::image_32fc1(stamp, cam, good.depth_prior.as_ref().expect("prior"))).expect("prior");
         let raw = msgs::Image {
             header: msgs::Header::new(stamp, cam),
             height: h,
@@ -879,7 +896,7 @@ fn inner_raw_image_and_odom_tf() {
             data: bgr.clone(),
         };
         raw_pub.publish(raw).expect("raw image");
-        corr_pub
+        wire.corr
             .publish(convert::correspondences_msg(stamp, cam, &good.map_frame_id, &good.correspondences))
             .expect("corr");
     };
@@ -920,7 +937,7 @@ fn inner_raw_image_and_odom_tf() {
         .map(|(x, y, p)| (x, y, p.0))
         .expect("a coloured pixel away from the matches");
     assert_eq!(px(far.0, far.1), far.2, "pixel ({}, {}) of the bgr8 input, as rgb", far.0, far.1);
-    wait_diag_until(&diag_sub, Instant::now(), tmp.path(), "no_odom_transform counted", &|d| {
+    wait_diag_until(&wire.diag, Instant::now(), tmp.path(), "no_odom_transform counted", &|d| {
         diag(d, "error.no_odom_transform") == 1
     });
     while let Ok(Some((m, _))) = tf_sub.take() {
