@@ -312,7 +312,7 @@ pub fn estimate_scale_shift(
     }
     let (votes, scale, t) = best?;
     let mut estimate = ScaleShift { scale, shift: scale * t, support: votes };
-    refine_scale_shift(rays, prior_depth, map, &pairs, &map_len, params, &mut estimate);
+    refine_scale_shift(rays, prior_depth, &pairs, &map_len, params, &mut estimate);
     (estimate.scale.is_finite() && estimate.scale > 0.0 && estimate.shift.is_finite()).then_some(estimate)
 }
 
@@ -321,13 +321,11 @@ pub fn estimate_scale_shift(
 fn refine_scale_shift(
     rays: &[Vector3<f64>],
     prior_depth: &[f64],
-    map: &[Point3<f64>],
     pairs: &[(u32, u32)],
     map_len: &[f64],
     params: &ScaleShiftParams,
     est: &mut ScaleShift,
 ) {
-    let _ = map;
     let tol = params.log_scale_window;
     for _ in 0..params.refine_iterations {
         let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
