@@ -89,6 +89,12 @@ pub struct PnpParams {
     pub loss: RobustLoss,
     /// Scale of the robust loss, pixels.
     pub loss_scale_px: f64,
+    /// Side of the image cells of coverage scoring, pixels; 0 turns it off. When on, a
+    /// hypothesis is ranked by the number of distinct cells its inliers occupy (ties: inlier
+    /// count, then MSAC), not by its inlier count: a wrong pose that explains one rigidly
+    /// displaced patch of matches gathers its support in a few cells, the true pose's spreads
+    /// over the image.
+    pub coverage_cell_px: f64,
 }
 
 impl Default for PnpParams {
@@ -103,6 +109,7 @@ impl Default for PnpParams {
             refine: true,
             loss: RobustLoss::Huber,
             loss_scale_px: 2.0,
+            coverage_cell_px: 32.0,
         }
     }
 }

@@ -235,6 +235,67 @@ impl Data {
     }
 }
 
+/// Coverage scoring (see [`PnpParams::coverage_cell_px`]): each position's image cell, and a
+/// stamped scratch array that counts distinct cells without clearing.
+struct Coverage {
+    cell: Vec<u32>,
+    seen: Vec<u32>,
+    stamp: u32,
+}
+
+impl Coverage {
+    fn new(px: &[Vector2<f64>], cell_px: f64) -> Option<Self> {
+        if !(cell_px.is_finite() && cell_px > 0.0) || px.is_empty() {
+            return None;
+        }
+        let (mut lo, mut hi) = (px[0], px[0]);
+        for p in px {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        let cols = (((hi.x - lo.x) / cell_px).floor() as u32).saturating_add(1).min(1 << 12);
+        let rows = (((hi.y - lo.y) / cell_px).floor() as u32).saturating_add(1).min(1 << 12);
+        let cell: Vec<u32> = px
+            .iter()
+            .map(|p| {
+                let c = (((p.x - lo.x) / cell_px) as u32).min(cols - 1);
+                let r = (((p.y - lo.y) / cell_px) as u32).min(rows - 1);
+                r * cols + c
+            })
+            .collect();
+        Some(Self { cell, seen: vec![0; (rows * cols) as usize], stamp: 0 })
+    }
+
+    /// Ranking cost of a pose, lower is better: minus the number of distinct cells holding an
+    /// inlier; the inlier count and the MSAC score (both scaled below one cell) break ties.
+    /// Returns (cost, inliers, cells).
+    fn cost(&mut self, data: &Data, pose: &MapToCamera) -> (f64, usize, usize) {
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            self.seen.fill(0);
+            self.stamp = 1;
+        }
+        let (mut cells, mut inliers, mut msac) = (0usize, 0usize, 0.0);
+        for (i, (p, q)) in data.pw.iter().zip(&data.px).enumerate() {
+            let e2 = reproj_err2(&data.cam, pose, p, q);
+            if e2 < data.th2 {
+                inliers += 1;
+                msac += e2;
+                let c = self.cell[i] as usize;
+                if self.seen[c] != self.stamp {
+                    self.seen[c] = self.stamp;
+                    cells += 1;
+                }
+            } else {
+                msac += data.th2;
+            }
+        }
+        let n = data.pw.len() as f64;
+        let cost = -(cells as f64) - 0.5 * inliers as f64 / (n + 1.0) + 0.25 * msac / (n * data.th2 + 1.0);
+        (cost, inliers, cells)
+    }
+}
+
 fn validate(params: &PnpParams) -> Result<(), PnpError> {
     if !(params.threshold_px.is_finite() && params.threshold_px > 0.0) {
         return Err(PnpError::InvalidParams("threshold_px must be finite and > 0"));
@@ -342,11 +403,12 @@ pub fn solve_pnp_ransac(
         ranks
     });
     let mut prosac = pos_of_rank.as_ref().map(|_| Prosac::new(n, params.max_iterations));
+    let mut coverage = Coverage::new(&data.px, params.coverage_cell_px);
 
     let sprt_keep = 1.0 - 1.0 / SPRT_A;
     let mut best: Option<MapToCamera> = None;
     let mut best_score = f64::INFINITY;
-    let mut best_inliers = 0usize;
+    let mut best_support = 0usize;
     let mut sprt: Option<Sprt> = Sprt::new(0.0);
     let mut needed = f64::INFINITY;
     let mut idx_buf: Vec<usize> = Vec::with_capacity(n);
@@ -368,8 +430,23 @@ pub fn solve_pnp_ransac(
         let mut improved = false;
         let start = if sols.is_empty() { 0 } else { rng.below(n) };
         for pose in sols.iter() {
-            let Score::Better(score, inliers) = data.score_bounded(pose, best_score, sprt, start) else { continue };
-            let (mut pose, mut score, mut inliers) = (*pose, score, inliers);
+            // `support`: what SPRT and the stopping rule count, cells with coverage scoring
+            // (never more than the inliers, so both stay conservative), else inliers.
+            let (score, inliers, support) = match coverage.as_mut() {
+                // SPRT may still reject; the coverage cost has no running bound.
+                Some(cov) => match data.score_bounded(pose, f64::INFINITY, sprt, start) {
+                    Score::Rejected => continue,
+                    Score::Better(..) => match cov.cost(&data, pose) {
+                        (c, i, cells) if c < best_score => (c, i, cells),
+                        _ => continue,
+                    },
+                },
+                None => match data.score_bounded(pose, best_score, sprt, start) {
+                    Score::Better(score, inliers) => (score, inliers, inliers),
+                    Score::Rejected => continue,
+                },
+            };
+            let (mut pose, mut score, mut inliers, mut support) = (*pose, score, inliers, support);
             if params.local_optimization && inliers >= 4 {
                 for _ in 0..LO_ROUNDS {
                     data.collect_inliers(&pose, &mut idx_buf);
@@ -377,10 +454,16 @@ pub fn solve_pnp_ransac(
                         break;
                     }
                     let (cand, _, _) = lm_refine(&cam, &data.px, &data.pw, &idx_buf, pose, &lo_loss, LO_LM_ITERATIONS);
-                    let (cs, ci) = data.score_full(&cand);
+                    let (cs, ci, csup) = match coverage.as_mut() {
+                        Some(cov) => cov.cost(&data, &cand),
+                        None => {
+                            let (cs, ci) = data.score_full(&cand);
+                            (cs, ci, ci)
+                        }
+                    };
                     if cs < score {
                         let grew = ci > inliers;
-                        (pose, score, inliers) = (cand, cs, ci);
+                        (pose, score, inliers, support) = (cand, cs, ci, csup);
                         if !grew {
                             break;
                         }
@@ -391,13 +474,13 @@ pub fn solve_pnp_ransac(
             }
             best = Some(pose);
             best_score = score;
-            best_inliers = inliers;
+            best_support = support;
             improved = true;
         }
         if let (true, Some(pose)) = (improved, &best) {
-            sprt = Sprt::new(best_inliers as f64 / n as f64);
+            sprt = Sprt::new(best_support as f64 / n as f64);
             needed = match &pos_of_rank {
-                None => samples_needed(best_inliers as f64 / n as f64, params.confidence, sprt_keep),
+                None => samples_needed(best_support as f64 / n as f64, params.confidence, sprt_keep),
                 Some(map) => {
                     for (pos, f) in flags.iter_mut().enumerate() {
                         *f = reproj_err2(&cam, pose, &data.pw[pos], &data.px[pos]) < data.th2;

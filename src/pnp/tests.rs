@@ -463,3 +463,36 @@ fn ransac_handles_planar_maps() {
     assert!(r < 1e-2 && t < 0.2, "{r} {t}");
     assert!(matches!(epnp(&intr, &px, &pw), Err(PnpError::Degenerate(_))));
 }
+
+/// 12 true matches spread over the image, 20 matches in one 40 px patch whose map points were
+/// displaced together (they agree with one wrong pose), 60 random outliers: counting inliers
+/// picks the patch's pose, counting covered cells picks the true one.
+#[test]
+fn coverage_scoring_prefers_spread_support_over_a_displaced_patch() {
+    let mut rng = WyRand::new(7);
+    let pose = random_pose(&mut rng);
+    let intr = k();
+    let (mut px, mut pw) = visible(&mut rng, &pose, 12, 0.5);
+    let moved = Isometry3::new(Vector3::new(0.8, -0.5, 0.3), Vector3::new(0.2, 0.4, -0.1));
+    for _ in 0..20 {
+        let p = Point2::new(uniform(&mut rng, 300.0, 340.0), uniform(&mut rng, 200.0, 240.0));
+        let xc = intr.back_project(&p, uniform(&mut rng, 4.0, 5.0));
+        px.push(p);
+        pw.push(moved * (pose * xc));
+    }
+    let (_, random_points) = visible(&mut rng, &pose, 60, 0.0);
+    for q in random_points {
+        px.push(Point2::new(uniform(&mut rng, 0.0, 640.0), uniform(&mut rng, 0.0, 480.0)));
+        pw.push(q);
+    }
+    let params = PnpParams { max_iterations: 20_000, ..PnpParams::default() };
+    let by_count = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 0.0, ..params.clone() }, 1)
+        .expect("a pose");
+    let by_cells = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 32.0, ..params }, 1)
+        .expect("a pose");
+    let (rot, trans) = pose_error(&by_cells.pose, &pose);
+    assert!(rot < 0.01 && trans < 0.05, "coverage: {rot} rad, {trans} m off");
+    assert!(by_cells.inliers[..12].iter().filter(|&&f| f).count() >= 11);
+    let (rot, _) = pose_error(&by_count.pose, &pose);
+    assert!(rot > 0.05, "inlier count should have picked the patch's pose (the case this scoring exists for)");
+}
