@@ -40,6 +40,10 @@ enum Command {
         /// ROS 2 params file (default: none, built-in defaults = params/angle_i2p.yaml).
         #[arg(long)]
         params_file: Option<PathBuf>,
+        /// Parameter override `NAME:=VALUE` (dotted names, e.g. `network.tau:=0.4`); repeatable,
+        /// applied after the params file.
+        #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
+        param: Vec<String>,
         /// Print one line per frame.
         #[arg(long)]
         verbose: bool,
@@ -65,6 +69,10 @@ enum Command {
         out: PathBuf,
         #[arg(long)]
         params_file: Option<PathBuf>,
+        /// Parameter override `NAME:=VALUE` (dotted names, e.g. `network.tau:=0.4`); repeatable,
+        /// applied after the params file.
+        #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
+        param: Vec<String>,
     },
     /// Print the last `/diagnostics` status of each name recorded in a bag (e.g. `node --record`).
     Diagnostics { bag: PathBuf },
@@ -72,6 +80,10 @@ enum Command {
     Params {
         #[arg(long)]
         params_file: Option<PathBuf>,
+        /// Parameter override `NAME:=VALUE` (dotted names, e.g. `network.tau:=0.4`); repeatable,
+        /// applied after the params file.
+        #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
+        param: Vec<String>,
     },
     /// Run the live ROS 2 node over DDS (ros2-client/RustDDS) until SIGINT/SIGTERM.
     ///
@@ -123,16 +135,24 @@ fn main() -> ExitCode {
 }
 
 fn load_params(path: Option<&Path>) -> Result<Params> {
-    Ok(match path {
-        Some(p) => Params::from_ros_params_file(p)?,
-        None => Params::default(),
-    })
+    load_params_with(path, &[])
+}
+
+/// Defaults < params file < `-p NAME:=VALUE` overrides, resolved as the node resolves them.
+fn load_params_with(path: Option<&Path>, overrides: &[String]) -> Result<Params> {
+    let mut tokens = vec!["--ros-args".to_string()];
+    for o in overrides {
+        tokens.extend(["-p".to_string(), o.clone()]);
+    }
+    let args = angle_i2p::node::RosArgs::parse(&tokens)?;
+    let names = angle_i2p::node::Names::new("angle_i2p", &args);
+    Ok(angle_i2p::node::resolve_params(path, &args, &names)?.params)
 }
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Replay { bag, out, method, params_file, verbose } => {
-            let mut params = load_params(params_file.as_deref())?;
+        Command::Replay { bag, out, method, params_file, param, verbose } => {
+            let mut params = load_params_with(params_file.as_deref(), &param)?;
             if let Some(m) = method {
                 params.method = m;
             }
@@ -206,8 +226,8 @@ fn run(cli: Cli) -> Result<()> {
             println!("{report}");
             Ok(())
         }
-        Command::Export { bag, out, params_file } => {
-            let params = load_params(params_file.as_deref())?;
+        Command::Export { bag, out, params_file, param } => {
+            let params = load_params_with(params_file.as_deref(), &param)?;
             let report = app::export_samples(&bag, &out, &params)?;
             for s in &report.skipped {
                 eprintln!("warning: {s}");
@@ -234,8 +254,8 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Params { params_file } => {
-            let params = load_params(params_file.as_deref())?;
+        Command::Params { params_file, param } => {
+            let params = load_params_with(params_file.as_deref(), &param)?;
             let mut node = serde_yaml::Mapping::new();
             node.insert("ros__parameters".into(), serde_yaml::to_value(&params)?);
             let mut doc = serde_yaml::Mapping::new();
@@ -251,8 +271,17 @@ fn run(cli: Cli) -> Result<()> {
             for e in &est {
                 let ev =
                     app::evaluate(&input, e, &params.topics).with_context(|| format!("evaluating {}", e.display()))?;
-                rows.push((ev.method.clone(), ev.summary.clone()));
                 evaluations.push(ev);
+            }
+            // Rows of one method (variants of it) are told apart by their output directory.
+            let methods: Vec<String> = evaluations.iter().map(|ev| ev.method.clone()).collect();
+            for (ev, e) in evaluations.iter_mut().zip(&est) {
+                if methods.iter().filter(|m| **m == ev.method).count() > 1 {
+                    let dir =
+                        e.file_name().map_or_else(|| e.display().to_string(), |n| n.to_string_lossy().into_owned());
+                    ev.method = format!("{} ({dir})", ev.method);
+                }
+                rows.push((ev.method.clone(), ev.summary.clone()));
             }
             if json {
                 let obj: serde_json::Map<String, serde_json::Value> = evaluations

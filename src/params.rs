@@ -83,5 +83,8 @@ mod tests {
     fn unknown_keys_are_rejected() {
         let err = Params::from_ros_params_yaml("angle_i2p:\n  ros__parameters:\n    methd: ransac\n").unwrap_err();
         assert!(err.contains("methd"), "{err}");
+        let err =
+            Params::from_ros_params_yaml("angle_i2p:\n  ros__parameters:\n    network: {tauu: 0.4}\n").unwrap_err();
+        assert!(err.contains("tauu"), "a nested typo must not pass silently: {err}");
     }
 }
