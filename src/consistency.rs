@@ -186,7 +186,7 @@ impl ScaleShift {
 
 /// Parameters of [`estimate_scale_shift`].
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ScaleShiftParams {
     /// Neighbours per correspondence in the image, whose pairs vote (local pairs keep their
     /// length even inside a wrongly placed but rigid patch).

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::params::Params;
-use crate::pnp::{pose_covariance, refine_pose, solve_pnp_ransac, PnpError, RefineOptions, RobustLoss};
+use crate::pnp::{pose_covariance, refine_pose, solve_pnp_ransac_with_prior, PnpError, RefineOptions, RobustLoss};
 use crate::reject::network::NetworkRejector;
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
 
@@ -40,7 +40,7 @@ impl Method {
 
 /// The last refinement over every correspondence that agrees with the pose.
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct FinalRefine {
     pub enabled: bool,
     /// A correspondence joins when its reprojection error is below
@@ -195,8 +195,12 @@ impl Localizer {
 
         // Geometry: rays, prior depths and the aligned image cloud (only a rejector needs them).
         let t = Instant::now();
+        let align = match self.params.method {
+            Method::AngleI2p => self.params.network.alignment(&self.params.align),
+            _ => Some(&self.params.align),
+        };
         let geometry = match self.rejector {
-            Some(_) => FrameGeometry::build(frame, self.params.depth_kind, Some(&self.params.align)),
+            Some(_) => FrameGeometry::build(frame, self.params.depth_kind, align),
             None => FrameGeometry::default(),
         };
         out.scale_shift = geometry.scale_shift;
@@ -225,11 +229,14 @@ impl Localizer {
         let pixels: Vec<_> = subset.iter().map(|&i| frame.correspondences[i].pixel).collect();
         let points: Vec<_> = subset.iter().map(|&i| frame.correspondences[i].point).collect();
         let scores: Option<Vec<f32>> = rejection.as_ref().map(|r| subset.iter().map(|&i| r.scores[i]).collect());
-        let solved = solve_pnp_ransac(
+        let priors: Option<Vec<f64>> =
+            geometry.has_prior().then(|| subset.iter().map(|&i| geometry.prior_depth[i]).collect());
+        let solved = solve_pnp_ransac_with_prior(
             &frame.intrinsics,
             &pixels,
             &points,
             scores.as_deref(),
+            priors.as_deref(),
             &self.params.pnp,
             self.params.seed,
         );

@@ -37,7 +37,7 @@ use thiserror::Error;
 pub use epnp::epnp;
 pub use lm::{pose_covariance, refine_pose, RefineOptions, RefineResult};
 pub use p3p::{p3p, P3pSolutions};
-pub use ransac::{solve_pnp_nonminimal, solve_pnp_ransac};
+pub use ransac::{solve_pnp_nonminimal, solve_pnp_ransac, solve_pnp_ransac_with_prior};
 
 /// Why a PnP solve produced no pose.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -71,7 +71,7 @@ pub enum RobustLoss {
 
 /// Parameters of [`solve_pnp_ransac`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PnpParams {
     /// Inlier threshold on the reprojection error, pixels.
     pub threshold_px: f64,
@@ -95,6 +95,9 @@ pub struct PnpParams {
     /// displaced patch of matches gathers its support in a few cells, the true pose's spreads
     /// over the image.
     pub coverage_cell_px: f64,
+    /// With coverage scoring and prior depths ([`solve_pnp_ransac_with_prior`]): an inlier
+    /// counts only if its depth is within this share of the prior's (affinely mapped); 0: off.
+    pub prior_tolerance: f64,
 }
 
 impl Default for PnpParams {
@@ -110,6 +113,7 @@ impl Default for PnpParams {
             loss: RobustLoss::Huber,
             loss_scale_px: 2.0,
             coverage_cell_px: 32.0,
+            prior_tolerance: 0.2,
         }
     }
 }

@@ -225,6 +225,11 @@ impl Data {
         (score, inliers)
     }
 
+    /// Depth of the map point at `pos` in the camera of `pose`.
+    fn pose_depth(&self, pose: &MapToCamera, pos: usize) -> f64 {
+        (pose.rotation * self.pw[pos] + pose.translation).z
+    }
+
     fn collect_inliers(&self, pose: &MapToCamera, out: &mut Vec<usize>) {
         out.clear();
         for (i, (p, q)) in self.pw.iter().zip(&self.px).enumerate() {
@@ -236,15 +241,20 @@ impl Data {
 }
 
 /// Coverage scoring (see [`PnpParams::coverage_cell_px`]): each position's image cell, and a
-/// stamped scratch array that counts distinct cells without clearing.
+/// stamped scratch array that counts distinct cells without clearing. With prior depths, only
+/// inliers whose depth under the pose agrees with the prior count (see [`depth_agreement`]).
 struct Coverage {
     cell: Vec<u32>,
     seen: Vec<u32>,
     stamp: u32,
+    /// Prior depth per position (any affine scale; NaN where unknown) and relative tolerance.
+    prior: Option<(Vec<f64>, f64)>,
+    inliers: Vec<usize>,
+    depths: Vec<(f64, f64)>,
 }
 
 impl Coverage {
-    fn new(px: &[Vector2<f64>], cell_px: f64) -> Option<Self> {
+    fn new(px: &[Vector2<f64>], cell_px: f64, prior: Option<(Vec<f64>, f64)>) -> Option<Self> {
         if !(cell_px.is_finite() && cell_px > 0.0) || px.is_empty() {
             return None;
         }
@@ -263,27 +273,35 @@ impl Coverage {
                 r * cols + c
             })
             .collect();
-        Some(Self { cell, seen: vec![0; (rows * cols) as usize], stamp: 0 })
+        let seen = vec![0; (rows * cols) as usize];
+        Some(Self { cell, seen, stamp: 0, prior, inliers: Vec::new(), depths: Vec::new() })
     }
 
-    /// Ranking cost of a pose, lower is better: minus the number of distinct cells holding an
-    /// inlier; the inlier count and the MSAC score (both scaled below one cell) break ties.
-    /// Returns (cost, inliers, cells).
-    fn cost(&mut self, data: &Data, pose: &MapToCamera) -> (f64, usize, usize) {
+    fn next_stamp(&mut self) -> u32 {
         self.stamp = self.stamp.wrapping_add(1);
         if self.stamp == 0 {
             self.seen.fill(0);
             self.stamp = 1;
         }
-        let (mut cells, mut inliers, mut msac) = (0usize, 0usize, 0.0);
+        self.stamp
+    }
+
+    /// Ranking cost of a pose, lower is better: minus the number of distinct cells holding an
+    /// inlier; the inlier count and the MSAC score (both scaled below one cell) break ties.
+    /// `best`: the cost to beat; a pose that cannot beat it is not checked against the prior.
+    /// Returns (cost, inliers, cells).
+    fn cost(&mut self, data: &Data, pose: &MapToCamera, best: f64) -> (f64, usize, usize) {
+        let stamp = self.next_stamp();
+        let (mut cells, mut msac) = (0usize, 0.0);
+        self.inliers.clear();
         for (i, (p, q)) in data.pw.iter().zip(&data.px).enumerate() {
             let e2 = reproj_err2(&data.cam, pose, p, q);
             if e2 < data.th2 {
-                inliers += 1;
+                self.inliers.push(i);
                 msac += e2;
                 let c = self.cell[i] as usize;
-                if self.seen[c] != self.stamp {
-                    self.seen[c] = self.stamp;
+                if self.seen[c] != stamp {
+                    self.seen[c] = stamp;
                     cells += 1;
                 }
             } else {
@@ -291,9 +309,74 @@ impl Coverage {
             }
         }
         let n = data.pw.len() as f64;
-        let cost = -(cells as f64) - 0.5 * inliers as f64 / (n + 1.0) + 0.25 * msac / (n * data.th2 + 1.0);
-        (cost, inliers, cells)
+        let cost = |cells: usize, inliers: usize, msac: f64| {
+            -(cells as f64) - 0.5 * inliers as f64 / (n + 1.0) + 0.25 * msac / (n * data.th2 + 1.0)
+        };
+        let plain = cost(cells, self.inliers.len(), msac);
+        let Some((prior, tolerance)) = &self.prior else { return (plain, self.inliers.len(), cells) };
+        if plain >= best {
+            return (plain, self.inliers.len(), cells);
+        }
+        // Inliers whose pose depth disagrees with the prior count as outliers.
+        self.depths.clear();
+        for &i in &self.inliers {
+            let z = data.pose_depth(pose, i);
+            self.depths.push((prior[i], z));
+        }
+        let agree = depth_agreement(&self.depths, *tolerance);
+        let stamp = self.next_stamp();
+        let (mut cells, mut kept) = (0usize, 0usize);
+        for (&i, &ok) in self.inliers.iter().zip(&agree) {
+            if ok {
+                kept += 1;
+                let c = self.cell[i] as usize;
+                if self.seen[c] != stamp {
+                    self.seen[c] = stamp;
+                    cells += 1;
+                }
+            }
+        }
+        (cost(cells, kept, msac), kept, cells)
     }
+}
+
+/// Which (prior, depth) pairs agree with one affine map `depth ≈ a·prior + b`, `a > 0`, within
+/// `tolerance`·depth: the map agreed on by the most pairs, tried from every two pairs (a
+/// monocular prior is right up to scale and shift). Pairs with an unknown prior always agree
+/// (no evidence against them); below three known pairs every pair agrees.
+pub(crate) fn depth_agreement(pairs: &[(f64, f64)], tolerance: f64) -> Vec<bool> {
+    let known: Vec<usize> = (0..pairs.len()).filter(|&i| pairs[i].0.is_finite() && pairs[i].1 > 0.0).collect();
+    let mut best = vec![true; pairs.len()];
+    if known.len() < 3 {
+        return best;
+    }
+    let agrees = |a: f64, b: f64, (d, z): (f64, f64)| (z - (a * d + b)).abs() < tolerance * z;
+    let mut best_count = 0;
+    for (x, &i) in known.iter().enumerate() {
+        for &j in &known[x + 1..] {
+            let ((di, zi), (dj, zj)) = (pairs[i], pairs[j]);
+            if (di - dj).abs() < 1e-9 {
+                continue;
+            }
+            let a = (zi - zj) / (di - dj);
+            if !(a > 0.0) {
+                continue;
+            }
+            let b = zi - a * di;
+            let count = known.iter().filter(|&&k| agrees(a, b, pairs[k])).count();
+            if count > best_count {
+                best_count = count;
+                for &k in &known {
+                    best[k] = agrees(a, b, pairs[k]);
+                }
+            }
+        }
+    }
+    if best_count == 0 {
+        // No two pairs define an increasing map (e.g. all at one prior depth): no evidence.
+        best.iter_mut().for_each(|b| *b = true);
+    }
+    best
 }
 
 fn validate(params: &PnpParams) -> Result<(), PnpError> {
@@ -356,7 +439,29 @@ pub fn solve_pnp_ransac(
     params: &PnpParams,
     seed: u64,
 ) -> Result<PnpSolution, PnpError> {
+    solve_pnp_ransac_with_prior(intrinsics, pixels, points, scores, None, params, seed)
+}
+
+/// [`solve_pnp_ransac`] that also knows each pixel's depth from a monocular prior (right up to
+/// an unknown scale and shift; NaN where unknown). With coverage scoring and
+/// `params.prior_tolerance > 0`, a hypothesis' inliers count only when their depths under it
+/// agree with the prior through one increasing affine map: a pose that explains true matches
+/// and a displaced patch at once puts the two at depths the prior contradicts.
+pub fn solve_pnp_ransac_with_prior(
+    intrinsics: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+    scores: Option<&[f32]>,
+    prior_depths: Option<&[f64]>,
+    params: &PnpParams,
+    seed: u64,
+) -> Result<PnpSolution, PnpError> {
     check_basic(intrinsics, pixels.len(), points.len())?;
+    if let Some(d) = prior_depths {
+        if d.len() != pixels.len() {
+            return Err(PnpError::LengthMismatch { pixels: pixels.len(), points: points.len(), scores: Some(d.len()) });
+        }
+    }
     if let Some(s) = scores {
         if s.len() != pixels.len() {
             return Err(PnpError::LengthMismatch { pixels: pixels.len(), points: points.len(), scores: Some(s.len()) });
@@ -403,7 +508,10 @@ pub fn solve_pnp_ransac(
         ranks
     });
     let mut prosac = pos_of_rank.as_ref().map(|_| Prosac::new(n, params.max_iterations));
-    let mut coverage = Coverage::new(&data.px, params.coverage_cell_px);
+    let prior = prior_depths
+        .filter(|_| params.prior_tolerance > 0.0)
+        .map(|d| (orig.iter().map(|&i| d[i]).collect(), params.prior_tolerance));
+    let mut coverage = Coverage::new(&data.px, params.coverage_cell_px, prior);
 
     let sprt_keep = 1.0 - 1.0 / SPRT_A;
     let mut best: Option<MapToCamera> = None;
@@ -436,7 +544,7 @@ pub fn solve_pnp_ransac(
                 // SPRT may still reject; the coverage cost has no running bound.
                 Some(cov) => match data.score_bounded(pose, f64::INFINITY, sprt, start) {
                     Score::Rejected => continue,
-                    Score::Better(..) => match cov.cost(&data, pose) {
+                    Score::Better(..) => match cov.cost(&data, pose, best_score) {
                         (c, i, cells) if c < best_score => (c, i, cells),
                         _ => continue,
                     },
@@ -455,7 +563,7 @@ pub fn solve_pnp_ransac(
                     }
                     let (cand, _, _) = lm_refine(&cam, &data.px, &data.pw, &idx_buf, pose, &lo_loss, LO_LM_ITERATIONS);
                     let (cs, ci, csup) = match coverage.as_mut() {
-                        Some(cov) => cov.cost(&data, &cand),
+                        Some(cov) => cov.cost(&data, &cand, score),
                         None => {
                             let (cs, ci) = data.score_full(&cand);
                             (cs, ci, ci)

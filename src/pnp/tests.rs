@@ -488,11 +488,57 @@ fn coverage_scoring_prefers_spread_support_over_a_displaced_patch() {
     let params = PnpParams { max_iterations: 20_000, ..PnpParams::default() };
     let by_count = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 0.0, ..params.clone() }, 1)
         .expect("a pose");
-    let by_cells = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 32.0, ..params }, 1)
-        .expect("a pose");
+    let by_cells =
+        solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 32.0, ..params }, 1).expect("a pose");
     let (rot, trans) = pose_error(&by_cells.pose, &pose);
     assert!(rot < 0.01 && trans < 0.05, "coverage: {rot} rad, {trans} m off");
     assert!(by_cells.inliers[..12].iter().filter(|&&f| f).count() >= 11);
     let (rot, _) = pose_error(&by_count.pose, &pose);
     assert!(rot > 0.05, "inlier count should have picked the patch's pose (the case this scoring exists for)");
+}
+
+#[test]
+fn depth_agreement_finds_the_affine_prior_map() {
+    let d = [1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 1.2, 2.2, 3.2, f64::NAN];
+    let mut pairs: Vec<(f64, f64)> = d.iter().map(|&d| (d, 2.0 * d + 0.5)).collect();
+    for p in &mut pairs[6..9] {
+        p.1 *= 1.5; // a displaced patch: 50 % deeper than the prior says
+    }
+    pairs[9].1 = 4.0;
+    let agree = super::ransac::depth_agreement(&pairs, 0.1);
+    assert_eq!(agree, [true, true, true, true, true, true, false, false, false, true]);
+    // Too few known depths: no evidence either way.
+    assert!(super::ransac::depth_agreement(&pairs[..2], 0.1).iter().all(|&a| a));
+}
+
+/// 10 true matches, and 16 wrong ones that happen to agree with one other pose over the whole
+/// image (more cells than the truth) but whose depths under that pose the prior contradicts:
+/// without prior depths the wrong pose wins, with them the true one.
+#[test]
+fn prior_depths_reject_a_pose_the_prior_contradicts() {
+    let mut rng = WyRand::new(11);
+    let pose = random_pose(&mut rng);
+    let intr = k();
+    let (mut px, mut pw) = visible(&mut rng, &pose, 10, 0.3);
+    let to_cam = pose.inverse();
+    let mut prior: Vec<f64> = pw.iter().map(|p| (to_cam * p).z / 3.0 + 0.2).collect();
+    let wrong = random_pose(&mut rng);
+    let (wrong_px, wrong_pw) = visible(&mut rng, &wrong, 16, 0.3);
+    px.extend(wrong_px);
+    pw.extend(wrong_pw);
+    prior.extend((0..16).map(|_| uniform(&mut rng, 0.5, 8.0)));
+    let (_, more_pw) = visible(&mut rng, &pose, 40, 0.0);
+    for q in more_pw {
+        px.push(Point2::new(uniform(&mut rng, 0.0, 640.0), uniform(&mut rng, 0.0, 480.0)));
+        pw.push(q);
+        prior.push(uniform(&mut rng, 0.5, 8.0));
+    }
+    let params = PnpParams { max_iterations: 20_000, ..PnpParams::default() };
+    let without = solve_pnp_ransac(&intr, &px, &pw, None, &params, 3).expect("a pose");
+    assert!(pose_error(&without.pose, &wrong).0 < 0.01, "without the prior the larger wrong set wins");
+    let with = solve_pnp_ransac_with_prior(&intr, &px, &pw, None, Some(&prior), &params, 3).expect("a pose");
+    let (rot, trans) = pose_error(&with.pose, &pose);
+    assert!(rot < 0.01 && trans < 0.05, "{rot} rad, {trans} m off");
+    let mismatched = solve_pnp_ransac_with_prior(&intr, &px, &pw, None, Some(&prior[..3]), &params, 3);
+    assert!(matches!(mismatched, Err(PnpError::LengthMismatch { .. })));
 }
