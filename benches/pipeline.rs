@@ -13,7 +13,8 @@ use angle_i2p::consistency::{angle_consistency, distance_consistency, Consistenc
 use angle_i2p::geometry::DepthKind;
 use angle_i2p::params::Params;
 use angle_i2p::pipeline::{Localizer, Method};
-use angle_i2p::reject::{FrameGeometry, Rejector, SpectralRejector};
+use angle_i2p::reject::network::{NetworkParams, NetworkRejector};
+use angle_i2p::reject::{FrameGeometry, Rejector, SpectralParams, SpectralRejector};
 use angle_i2p::synth::{generate, SynthConfig};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 
@@ -47,6 +48,19 @@ fn bench(c: &mut Criterion) {
         group.bench_with_input(BenchmarkId::new("spectral_scorer", n), &geometry, |b, g| {
             b.iter(|| scorer.reject(black_box(g)).expect("scores"))
         });
+        // The learned rejector's two halves: inputs built in Rust, then the network in ort.
+        if let Ok(mut network) = NetworkRejector::new(NetworkParams::default(), SpectralParams::default()) {
+            if let Some(map) = &map {
+                network.set_map(map);
+            }
+            group.bench_with_input(BenchmarkId::new("network_inputs", n), &geometry, |b, g| {
+                b.iter(|| network.inputs(black_box(g)))
+            });
+            let inputs = network.inputs(&geometry);
+            group.bench_with_input(BenchmarkId::new("network_run", n), &inputs, |b, i| {
+                b.iter(|| network.run(black_box(i)).expect("scores"))
+            });
+        }
         for method in [Method::Ransac, Method::Consistency, Method::AngleI2p] {
             let mut localizer = Localizer::new(Params { method, ..Params::default() });
             if let Some(e) = localizer.setup_error() {

@@ -227,14 +227,12 @@ pub struct ExportReport {
 /// (N×6: u, v, x, y, z, score).
 pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) -> Result<ExportReport> {
     use crate::npy;
-    use crate::reject::graph::GraphParams;
     use crate::reject::inputs::{build_inputs, IndexedMap};
     use crate::reject::{FrameGeometry, SpectralRejector};
 
     let bag = read_frames(input, &params.topics)?;
     let map = bag.map.as_ref().map(|m| IndexedMap::new(m.points.clone()));
-    let mut spectral = SpectralRejector::new(params.spectral.clone());
-    let graph = GraphParams::default();
+    let mut spectral = SpectralRejector::new(params.network.keypoint_spectral(params.spectral.clone()));
     let mut report = ExportReport { samples: 0, skipped: Vec::new() };
     for frame in &bag.frames {
         let Some((gt_pose, gt_depth)) =
@@ -247,8 +245,8 @@ pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) 
             report.skipped.push(format!("frame {}: no depth prior or no correspondences", frame.stamp));
             continue;
         }
-        let geometry = FrameGeometry::build(frame, params.depth_kind, Some(&params.align));
-        let inputs = build_inputs(&geometry, map.as_ref(), &mut spectral, &graph);
+        let geometry = FrameGeometry::build(frame, params.depth_kind, params.network.alignment(&params.align));
+        let inputs = build_inputs(&geometry, map.as_ref(), &mut spectral, &params.network);
         let labels: Vec<f32> = inlier_mask(&frame.correspondences, &frame.intrinsics, gt_pose, gt_depth)
             .into_iter()
             .map(|(inlier, valid)| {

@@ -196,22 +196,17 @@ pub fn pca_normal(neighbours: &[Point3<f64>], towards: &Point3<f64>) -> Option<V
     Some(n.normalize())
 }
 
-/// Normals of `points`, each from its `k` nearest neighbours within `index` (over `cloud`),
-/// oriented towards `towards`. Degenerate neighbourhoods get a zero vector.
-pub fn normals_from_index(
-    index: &PointIndex,
-    cloud: &[Point3<f32>],
-    points: &[Point3<f64>],
-    k: usize,
-    towards: &Point3<f64>,
-) -> Vec<Vector3<f64>> {
+/// The unit normal of every point of `cloud` (indexed by `index`) from its `k` nearest
+/// neighbours, with an arbitrary sign; degenerate neighbourhoods get a zero vector.
+pub fn point_cloud_normals(index: &PointIndex, cloud: &[Point3<f32>], k: usize) -> Vec<Vector3<f32>> {
     let mut neighbours = Vec::with_capacity(k);
-    points
+    cloud
         .iter()
         .map(|p| {
             neighbours.clear();
-            neighbours.extend(index.nearest(&p.cast::<f32>(), k).into_iter().map(|i| cloud[i].cast::<f64>()));
-            pca_normal(&neighbours, towards).unwrap_or_else(Vector3::zeros)
+            neighbours.extend(index.nearest(p, k).into_iter().map(|i| cloud[i].cast::<f64>()));
+            let c = centroid(&neighbours);
+            pca_normal(&neighbours, &c).map_or_else(Vector3::zeros, |n| n.cast())
         })
         .collect()
 }

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use angle_i2p::bag::read_frames;
 use angle_i2p::npy;
 use angle_i2p::params::Params;
-use angle_i2p::reject::graph::{GraphParams, Graphs};
+use angle_i2p::reject::graph::Graphs;
 use angle_i2p::reject::inputs::{build_inputs, IndexedMap, NetworkInputs};
 use angle_i2p::reject::network::{runtime_path, NetworkParams, NetworkRejector};
 use angle_i2p::reject::{FrameGeometry, SpectralRejector};
@@ -46,6 +46,7 @@ fn stored_inputs() -> NetworkInputs {
             cross_theta: f32s(&dir, "cross_theta"),
         },
         spectral_scores: f32s(&dir, "spectral"),
+        matcher_scores: f32s(&dir, "correspondences").chunks_exact(6).map(|c| c[5]).collect(),
     }
 }
 
@@ -62,8 +63,8 @@ fn rust_inputs_are_reproduced_exactly() {
     let frame = &bag.frames[0];
     let geometry = FrameGeometry::build(frame, params.depth_kind, Some(&params.align));
     let map = IndexedMap::new(bag.map.unwrap().points);
-    let mut spectral = SpectralRejector::new(params.spectral.clone());
-    let now = build_inputs(&geometry, Some(&map), &mut spectral, &GraphParams::default());
+    let mut spectral = SpectralRejector::new(params.network.keypoint_spectral(params.spectral.clone()));
+    let now = build_inputs(&geometry, Some(&map), &mut spectral, &params.network);
     let stored = stored_inputs();
     let flat: Vec<f32> = now.features.iter().flatten().copied().collect();
     let stored_flat: Vec<f32> = stored.features.iter().flatten().copied().collect();

@@ -7,6 +7,8 @@ Inputs (built in Rust by `angle-i2p export` / the node, never inside the graph):
   global_index [M]        the M keypoint correspondences (int64)
   global_theta [M, M]     θ among the keypoints
   cross_theta  [N, M]     θ between every correspondence and every keypoint
+  matcher_score [N]       the matcher's own confidence (only a model built with
+                          `use_matcher_score`; an input beyond eq. 9)
 Output: score [N], the inlier probability.
 
 Each block: self-attention inside every local group, self-attention among the keypoints,
@@ -18,6 +20,8 @@ import math
 
 import torch
 from torch import nn
+
+INPUT_NAMES = ["features", "local_index", "local_theta", "global_index", "global_theta", "cross_theta"]
 
 
 class ThetaAttention(nn.Module):
@@ -67,17 +71,19 @@ class Block(nn.Module):
 
 
 class AngleI2PNet(nn.Module):
-    def __init__(self, d: int = 32, blocks: int = 2, use_global: bool = True):
+    def __init__(self, d: int = 32, blocks: int = 2, use_global: bool = True, use_matcher_score: bool = False):
         super().__init__()
-        self.embed = nn.Sequential(nn.Linear(24, d), nn.ReLU(), nn.Linear(d, d))
+        self.use_matcher_score = use_matcher_score
+        self.config = {"d": d, "blocks": blocks, "use_global": use_global, "use_matcher_score": use_matcher_score}
+        self.input_names = INPUT_NAMES + (["matcher_score"] if use_matcher_score else [])
+        self.embed = nn.Sequential(nn.Linear(24 + int(use_matcher_score), d), nn.ReLU(), nn.Linear(d, d))
         self.blocks = nn.ModuleList(Block(d, use_global) for _ in range(blocks))
         self.head = nn.Sequential(nn.Linear(d, d), nn.ReLU(), nn.Linear(d, 1))
 
-    def forward(self, features, local_index, local_theta, global_index, global_theta, cross_theta):
+    def forward(self, features, local_index, local_theta, global_index, global_theta, cross_theta, matcher_score=None):
+        if self.use_matcher_score:
+            features = torch.cat([features, matcher_score.unsqueeze(-1)], dim=-1)
         f = self.embed(features)
         for block in self.blocks:
             f = block(f, local_index, local_theta, global_index, global_theta, cross_theta)
         return torch.sigmoid(self.head(f)).squeeze(-1)
-
-
-INPUT_NAMES = ["features", "local_index", "local_theta", "global_index", "global_theta", "cross_theta"]

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from dataset import load_dir
-from model import INPUT_NAMES, AngleI2PNet
+from model import AngleI2PNet
 
 
 def focal_loss(score, label, gamma=2.0, alpha=0.75):
@@ -28,7 +28,7 @@ def metrics(model, samples, tau):
     top = []
     with torch.no_grad():
         for s in samples:
-            score = model(*[s[k] for k in INPUT_NAMES])
+            score = model(*[s[k] for k in model.input_names])
             y = s["labels"]
             valid = y >= 0
             keep = (score >= tau) & valid
@@ -41,11 +41,15 @@ def metrics(model, samples, tau):
 def export(model, sample, path):
     """One ONNX file (no external data), dynamic N, V, K, M; opset 18."""
     torch.save(model.state_dict(), path.replace(".onnx", ".pt"))
-    args = tuple(sample[k] for k in INPUT_NAMES)
+    with open(path.replace(".onnx", ".json"), "w") as f:
+        json.dump(model.config, f)
+    args = tuple(sample[k] for k in model.input_names)
     n, v, k, m = torch.export.Dim("n"), torch.export.Dim("v"), torch.export.Dim("k"), torch.export.Dim("m")
     dims = {"features": {0: n}, "local_index": {0: v, 1: k}, "local_theta": {0: v, 1: k, 2: k},
             "global_index": {0: m}, "global_theta": {0: m, 1: m}, "cross_theta": {0: n, 1: m}}
-    torch.onnx.export(model, args, path, input_names=INPUT_NAMES, output_names=["score"], dynamic_shapes=dims,
+    if model.use_matcher_score:
+        dims["matcher_score"] = {0: n}
+    torch.onnx.export(model, args, path, input_names=model.input_names, output_names=["score"], dynamic_shapes=dims,
                       opset_version=18, external_data=False)
 
 
@@ -57,16 +61,20 @@ def main():
     ap.add_argument("--epochs", type=int, default=20)
     ap.add_argument("--d", type=int, default=32)
     ap.add_argument("--blocks", type=int, default=2)
+    ap.add_argument("--no-global", action="store_true", help="ablation: local attention only")
+    ap.add_argument("--matcher-score", action="store_true", help="also feed the matcher's confidence")
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--tau", type=float, default=0.2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--alpha", type=float, default=0.75, help="focal loss weight of the inlier class")
     a = ap.parse_args()
     torch.manual_seed(a.seed); random.seed(a.seed)
-    torch.set_num_threads(2)
+    torch.set_num_threads(a.threads)
     train = [s for d in a.train for s in load_dir(d)]
     val = {d: load_dir(d) for d in a.val}
     print(f"{len(train)} training samples; val: " + ", ".join(f"{d}: {len(v)}" for d, v in val.items()), flush=True)
-    model = AngleI2PNet(d=a.d, blocks=a.blocks)
+    model = AngleI2PNet(d=a.d, blocks=a.blocks, use_global=not a.no_global, use_matcher_score=a.matcher_score)
     opt = torch.optim.AdamW(model.parameters(), lr=a.lr, weight_decay=1e-6)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, a.epochs * len(train))
     for epoch in range(a.epochs):
@@ -74,9 +82,9 @@ def main():
         t0, total = time.time(), 0.0
         model.train()
         for s in train:
-            loss = focal_loss(model(*[s[k] for k in INPUT_NAMES]), s["labels"])
+            loss = focal_loss(model(*[s[k] for k in model.input_names]), s["labels"], alpha=a.alpha)
             opt.zero_grad(); loss.backward(); opt.step(); sched.step()
-            total += float(loss)
+            total += loss.item()
         model.eval()
         report = {d.rstrip("/").split("/")[-1]: metrics(model, v, a.tau) for d, v in val.items()}
         print(f"epoch {epoch}: loss {total / len(train):.4f} ({time.time() - t0:.0f}s) " + json.dumps(report), flush=True)

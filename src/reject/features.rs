@@ -5,10 +5,11 @@
 
 use nalgebra::{Point3, Vector3};
 
+use super::inputs::IndexedMap;
 use super::FrameGeometry;
 use crate::consistency::{estimate_scale, ScaleShift};
 use crate::frame::Frame;
-use crate::geometry::{centroid, normals_from_index, prior_normals, DepthKind, PointIndex};
+use crate::geometry::{centroid, prior_normals, DepthKind};
 
 /// Length of one feature vector.
 pub const FEATURE_DIM: usize = 24;
@@ -17,17 +18,18 @@ pub const FEATURE_DIM: usize = 24;
 pub const MAP_NORMAL_NEIGHBOURS: usize = 16;
 
 /// The centred clouds of eq. (5), the image one in map units: õ_i = (o_i − o_c)/s with s from
-/// eq. (8) when the prior was not aligned (with an aligned prior the cloud is metric, s = 1).
-/// Correspondences without a prior depth get a zero image vector.
-pub fn centred_clouds(geometry: &FrameGeometry) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+/// eq. (8) when the prior was not aligned and `rescale` (with an aligned prior the cloud is
+/// metric, s = 1; without alignment and without `rescale`, s = 1 too: the no-scale-alignment
+/// ablation). Correspondences without a prior depth get a zero image vector.
+pub fn centred_clouds(geometry: &FrameGeometry, rescale: bool) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
     let finite: Vec<usize> = (0..geometry.len())
         .filter(|&i| geometry.image_points.get(i).is_some_and(|p| p.coords.iter().all(|v| v.is_finite())))
         .collect();
     let image: Vec<Point3<f64>> = finite.iter().map(|&i| geometry.image_points[i]).collect();
     let map: Vec<Point3<f64>> = finite.iter().map(|&i| geometry.map_points[i]).collect();
     let scale = match geometry.scale_shift {
-        Some(_) => 1.0,
-        None => estimate_scale(&image, &map).unwrap_or(1.0),
+        None if rescale => estimate_scale(&image, &map).unwrap_or(1.0),
+        _ => 1.0,
     };
     let (oc, pc) = (centroid(&image), centroid(&geometry.map_points));
     let mut centred_image = vec![Vector3::zeros(); geometry.len()];
@@ -46,11 +48,24 @@ pub fn image_normals(frame: &Frame, geometry: &FrameGeometry, kind: DepthKind) -
     prior_normals(&frame.intrinsics, prior, kind, &geometry.pixels, |d| align.depth(d))
 }
 
-/// n^P: normals of the map cloud at the correspondences' map points, oriented towards the
-/// centroid of those points (a choice that moves with the map, like the image normals' camera).
-pub fn map_normals(index: &PointIndex, cloud: &[Point3<f32>], geometry: &FrameGeometry) -> Vec<Vector3<f64>> {
+/// n^P: the normal of the map point nearest to each correspondence's map point, oriented
+/// towards the centroid of the frame's map points (a choice that moves with the map, like the
+/// image normals' camera).
+pub fn map_normals(map: &IndexedMap, geometry: &FrameGeometry) -> Vec<Vector3<f64>> {
     let towards = centroid(&geometry.map_points);
-    normals_from_index(index, cloud, &geometry.map_points, MAP_NORMAL_NEIGHBOURS, &towards)
+    geometry
+        .map_points
+        .iter()
+        .map(|q| {
+            let Some(&nearest) = map.index.nearest(&q.cast::<f32>(), 1).first() else { return Vector3::zeros() };
+            let n: Vector3<f64> = map.normals[nearest].cast();
+            if n.dot(&(towards - q)) < 0.0 {
+                -n
+            } else {
+                n
+            }
+        })
+        .collect()
 }
 
 /// Eq. (9) for every correspondence.
@@ -58,8 +73,9 @@ pub fn features(
     geometry: &FrameGeometry,
     image_normals: &[Vector3<f64>],
     map_normals: &[Vector3<f64>],
+    rescale: bool,
 ) -> Vec<[f32; FEATURE_DIM]> {
-    let (image, map) = centred_clouds(geometry);
+    let (image, map) = centred_clouds(geometry, rescale);
     (0..geometry.len())
         .map(|i| {
             let c = [image[i].x, image[i].y, image[i].z, map[i].x, map[i].y, map[i].z];
@@ -99,7 +115,7 @@ mod tests {
     fn unaligned_image_cloud_is_rescaled_by_eq8() {
         let map = vec![Point3::new(0.0, 0.0, 0.0), Point3::new(2.0, 0.0, 0.0), Point3::new(0.0, 2.0, 0.0)];
         let image: Vec<_> = map.iter().map(|p| Point3::from(p.coords * 3.0 + Vector3::new(1.0, 1.0, 5.0))).collect();
-        let (oi, pm) = centred_clouds(&geometry(image, map, false));
+        let (oi, pm) = centred_clouds(&geometry(image, map, false), true);
         for (a, b) in oi.iter().zip(&pm) {
             assert!((a - b).norm() < 1e-12, "{a} vs {b}");
         }
@@ -113,7 +129,7 @@ mod tests {
             true,
         );
         let n = [Vector3::new(0.0, 0.0, -1.0); 2];
-        let f = features(&g, &n, &[Vector3::new(1.0, 0.0, 0.0); 2]);
+        let f = features(&g, &n, &[Vector3::new(1.0, 0.0, 0.0); 2], true);
         assert_eq!(f.len(), 2);
         assert_eq!(&f[0][..6], &[1.0, 0.0, 0.0, 0.0, 0.0, 2.0]);
         assert!((f[0][6] - 0.5f32.sin()).abs() < 1e-7 && (f[0][12] - 0.5f32.cos()).abs() < 1e-7);

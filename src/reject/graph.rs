@@ -3,13 +3,25 @@
 //! correspondences; the angle consistency θ (eq. 7) of every pair inside each graph and between
 //! every correspondence and every keypoint. The attention logits are multiplied by these θ.
 //!
-//! Keypoints: the paper takes P2-Net's top-M detections; here the M correspondences with the
-//! highest spectral consistency score, which need no detector and rank likely inliers first.
+//! Keypoints: the paper takes P2-Net's top-M detections; here the M correspondences ranked
+//! first by the caller's scores (see `network::KeypointRanking`: the spectral consistency score
+//! times the matcher's confidence by default), which need no detector.
 
 use nalgebra::{Point3, Vector3};
 
-use crate::consistency::{angle_consistency, ConsistencyMatrix};
+use crate::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix};
 use crate::geometry::{centroid, PointIndex};
+
+/// Which pairwise consistency the graphs' θ measures.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ThetaKind {
+    /// The paper's angle consistency, eq. (5)–(7), on clouds centred on their centroids.
+    #[default]
+    Angle,
+    /// Length consistency of the aligned (metric) image cloud, the paper's distance ablation.
+    Distance,
+}
 
 /// Graph sizes and the θ sensitivity.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -18,13 +30,27 @@ pub struct GraphParams {
     pub neighbours: usize,
     /// M: global keypoints.
     pub keypoints: usize,
-    /// σ_d of eq. (7).
+    pub theta: ThetaKind,
+    /// σ_d of eq. (7) (angle θ).
     pub sigma_d: f64,
+    /// Distance θ tolerance: `sigma_abs + sigma_rel·length` (m).
+    pub sigma_abs: f64,
+    pub sigma_rel: f64,
 }
 
 impl Default for GraphParams {
     fn default() -> Self {
-        Self { neighbours: 32, keypoints: 100, sigma_d: 0.2 }
+        Self { neighbours: 32, keypoints: 100, theta: ThetaKind::Angle, sigma_d: 0.2, sigma_abs: 0.05, sigma_rel: 0.1 }
+    }
+}
+
+impl GraphParams {
+    /// θ among all pairs of `image`/`map`, into `out`.
+    fn pair_theta(&self, image: &[Point3<f64>], map: &[Point3<f64>], out: &mut ConsistencyMatrix) {
+        match self.theta {
+            ThetaKind::Angle => angle_consistency(image, map, None, self.sigma_d, out),
+            ThetaKind::Distance => distance_consistency(image, map, self.sigma_abs, self.sigma_rel, out),
+        }
     }
 }
 
@@ -71,7 +97,7 @@ pub fn build_graphs(image: &[Point3<f64>], map: &[Point3<f64>], scores: &[f32], 
         group_map.clear();
         group_image.extend(group.iter().map(|&i| image[i]));
         group_map.extend(group.iter().map(|&i| map[i]));
-        angle_consistency(&group_image, &group_map, None, params.sigma_d, &mut theta);
+        params.pair_theta(&group_image, &group_map, &mut theta);
         local_index.extend(group.iter().map(|&i| i as u32));
         local_theta.extend_from_slice(&theta.values);
     }
@@ -80,32 +106,13 @@ pub fn build_graphs(image: &[Point3<f64>], map: &[Point3<f64>], scores: &[f32], 
     let global = crate::reject::top_k(&scores[..n], m);
     let key_image: Vec<_> = global.iter().map(|&i| image[i]).collect();
     let key_map: Vec<_> = global.iter().map(|&i| map[i]).collect();
-    angle_consistency(&key_image, &key_map, None, params.sigma_d, &mut theta);
+    params.pair_theta(&key_image, &key_map, &mut theta);
     let global_theta = theta.values.clone();
 
-    // Cross θ: eq. (7) for (correspondence, keypoint) pairs, both clouds centred on the
-    // keypoints' centroids.
-    let unit = |p: &Point3<f64>, c: &Point3<f64>| -> Vector3<f64> {
-        let v = p - c;
-        let norm = v.norm();
-        if norm > 1e-12 {
-            v / norm
-        } else {
-            Vector3::zeros()
-        }
+    let cross_theta = match params.theta {
+        ThetaKind::Angle => cross_angle_theta(&image[..n], &map[..n], &key_image, &key_map, params.sigma_d),
+        ThetaKind::Distance => cross_distance_theta(&image[..n], &map[..n], &key_image, &key_map, params),
     };
-    let (ci, cp) = (centroid(&key_image), centroid(&key_map));
-    let key_unit_image: Vec<_> = key_image.iter().map(|p| unit(p, &ci)).collect();
-    let key_unit_map: Vec<_> = key_map.iter().map(|p| unit(p, &cp)).collect();
-    let inv_sigma2 = 1.0 / (params.sigma_d * params.sigma_d);
-    let mut cross_theta = Vec::with_capacity(n * m);
-    for i in 0..n {
-        let (ui, up) = (unit(&image[i], &ci), unit(&map[i], &cp));
-        for j in 0..m {
-            let delta = ui.dot(&key_unit_image[j]).abs() - up.dot(&key_unit_map[j]).abs();
-            cross_theta.push((1.0 - delta * delta * inv_sigma2).max(0.0) as f32);
-        }
-    }
     Graphs {
         local_index,
         nodes: seeds.len(),
@@ -115,6 +122,59 @@ pub fn build_graphs(image: &[Point3<f64>], map: &[Point3<f64>], scores: &[f32], 
         global_theta,
         cross_theta,
     }
+}
+
+/// Eq. (7) for every (correspondence, keypoint) pair, both clouds centred on the keypoints'
+/// centroids. N × M, row-major.
+fn cross_angle_theta(
+    image: &[Point3<f64>],
+    map: &[Point3<f64>],
+    key_image: &[Point3<f64>],
+    key_map: &[Point3<f64>],
+    sigma_d: f64,
+) -> Vec<f32> {
+    let unit = |p: &Point3<f64>, c: &Point3<f64>| -> Vector3<f64> {
+        let v = p - c;
+        let norm = v.norm();
+        if norm > 1e-12 {
+            v / norm
+        } else {
+            Vector3::zeros()
+        }
+    };
+    let (ci, cp) = (centroid(key_image), centroid(key_map));
+    let key_unit_image: Vec<_> = key_image.iter().map(|p| unit(p, &ci)).collect();
+    let key_unit_map: Vec<_> = key_map.iter().map(|p| unit(p, &cp)).collect();
+    let inv_sigma2 = 1.0 / (sigma_d * sigma_d);
+    let mut cross = Vec::with_capacity(image.len() * key_image.len());
+    for (o, q) in image.iter().zip(map) {
+        let (ui, up) = (unit(o, &ci), unit(q, &cp));
+        for (ki, kp) in key_unit_image.iter().zip(&key_unit_map) {
+            let delta = ui.dot(ki).abs() - up.dot(kp).abs();
+            cross.push((1.0 - delta * delta * inv_sigma2).max(0.0) as f32);
+        }
+    }
+    cross
+}
+
+/// Length consistency for every (correspondence, keypoint) pair, as
+/// [`distance_consistency`]. N × M, row-major.
+fn cross_distance_theta(
+    image: &[Point3<f64>],
+    map: &[Point3<f64>],
+    key_image: &[Point3<f64>],
+    key_map: &[Point3<f64>],
+    params: &GraphParams,
+) -> Vec<f32> {
+    let mut cross = Vec::with_capacity(image.len() * key_image.len());
+    for (o, q) in image.iter().zip(map) {
+        for (ko, kq) in key_image.iter().zip(key_map) {
+            let d_map = (q - kq).norm();
+            let delta = ((o - ko).norm() - d_map) / (params.sigma_abs + params.sigma_rel * d_map);
+            cross.push((1.0 - delta * delta).max(0.0) as f32);
+        }
+    }
+    cross
 }
 
 /// `count` indices spread over `points`: start from the point farthest from the centroid, then
@@ -163,6 +223,24 @@ mod tests {
         assert_eq!(g.cross_theta.len(), 150 * 100);
         // A rigid, scaled copy is consistent everywhere (off the diagonal).
         assert!(g.cross_theta.iter().all(|&t| t > 0.999));
+    }
+
+    #[test]
+    fn distance_theta_needs_a_metric_copy() {
+        let map = grid(150);
+        let rigid: Vec<_> = map.iter().map(|p| Point3::new(p.y, -p.x, p.z + 2.0)).collect();
+        let scores: Vec<f32> = (0..150).map(|i| i as f32).collect();
+        let params = GraphParams { theta: ThetaKind::Distance, ..GraphParams::default() };
+        let g = build_graphs(&rigid, &map, &scores, &params);
+        assert!(g.cross_theta.iter().all(|&t| t > 0.999), "a rigid copy keeps every length");
+        let off_diagonal =
+            |v: &[f32], k: usize| v.iter().enumerate().filter(|(i, _)| i % (k + 1) != 0).all(|(_, &t)| t > 0.999);
+        assert!(off_diagonal(&g.global_theta, 100));
+        // Unlike the angle θ, lengths see a scaled copy as inconsistent.
+        let scaled: Vec<_> = rigid.iter().map(|p| Point3::from(p.coords * 2.0)).collect();
+        let g = build_graphs(&scaled, &map, &scores, &params);
+        let consistent = g.cross_theta.iter().filter(|&&t| t > 0.5).count();
+        assert!(consistent < g.cross_theta.len() / 10, "{consistent} of {}", g.cross_theta.len());
     }
 
     #[test]

@@ -3,23 +3,28 @@
 //! training — the ground-truth labels. The same code builds training samples (`angle-i2p
 //! export`) and inference inputs, so both sides see identical numbers.
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 
-use super::features::{features, map_normals, FEATURE_DIM};
-use super::graph::{build_graphs, GraphParams, Graphs};
+use super::features::{features, map_normals, FEATURE_DIM, MAP_NORMAL_NEIGHBOURS};
+use super::graph::{build_graphs, Graphs};
+use super::network::{KeypointRanking, NetworkParams};
 use super::{FrameGeometry, Rejector, SpectralRejector};
-use crate::geometry::PointIndex;
+use crate::geometry::{point_cloud_normals, PointIndex};
 
-/// The map, indexed once for normals.
+/// The map, indexed once, with the normal of every map point (PCA over its
+/// [`MAP_NORMAL_NEIGHBOURS`] nearest, sign left to each frame): a frame then needs one
+/// nearest-neighbour lookup per correspondence instead of a k-NN and an eigen-solve.
 pub struct IndexedMap {
     pub points: Vec<Point3<f32>>,
     pub index: PointIndex,
+    pub normals: Vec<Vector3<f32>>,
 }
 
 impl IndexedMap {
     pub fn new(points: Vec<Point3<f32>>) -> Self {
         let index = PointIndex::new(&points);
-        Self { points, index }
+        let normals = point_cloud_normals(&index, &points, MAP_NORMAL_NEIGHBOURS);
+        Self { points, index, normals }
     }
 }
 
@@ -31,6 +36,8 @@ pub struct NetworkInputs {
     pub graphs: Graphs,
     /// Spectral consistency score per correspondence (also ranks the global keypoints).
     pub spectral_scores: Vec<f32>,
+    /// The matcher's confidence per correspondence (an input of models trained with it).
+    pub matcher_scores: Vec<f32>,
 }
 
 /// Builds the inputs. Correspondences without prior depth get their map point as image point
@@ -39,11 +46,11 @@ pub fn build_inputs(
     geometry: &FrameGeometry,
     map: Option<&IndexedMap>,
     spectral: &mut SpectralRejector,
-    graph: &GraphParams,
+    params: &NetworkParams,
 ) -> NetworkInputs {
     let spectral_scores = spectral.reject(geometry).map(|r| r.scores).unwrap_or_else(|_| vec![0.0; geometry.len()]);
     let n_map = match map {
-        Some(m) => map_normals(&m.index, &m.points, geometry),
+        Some(m) => map_normals(m, geometry),
         None => vec![nalgebra::Vector3::zeros(); geometry.len()],
     };
     let image: Vec<Point3<f64>> = (0..geometry.len())
@@ -53,8 +60,27 @@ pub fn build_inputs(
         })
         .collect();
     NetworkInputs {
-        features: features(geometry, &geometry.image_normals, &n_map),
-        graphs: build_graphs(&image, &geometry.map_points, &spectral_scores, graph),
+        features: features(geometry, &geometry.image_normals, &n_map, params.align_prior),
+        graphs: build_graphs(
+            &image,
+            &geometry.map_points,
+            &keypoint_ranks(&spectral_scores, geometry, params),
+            &params.graph(),
+        ),
         spectral_scores,
+        matcher_scores: geometry.matcher_scores.clone(),
+    }
+}
+
+/// The scores that pick the keypoints ([`KeypointRanking`]). A matcher that publishes no
+/// confidence (all zero) leaves the spectral order.
+fn keypoint_ranks(spectral: &[f32], geometry: &FrameGeometry, params: &NetworkParams) -> Vec<f32> {
+    match params.keypoint_ranking {
+        KeypointRanking::Spectral => spectral.to_vec(),
+        KeypointRanking::SpectralMatcher => spectral
+            .iter()
+            .zip(&geometry.matcher_scores)
+            .map(|(&s, &m)| s * (if m.is_finite() { m.clamp(0.0, 1.0) } else { 0.0 } + 1e-3))
+            .collect(),
     }
 }

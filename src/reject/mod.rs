@@ -170,7 +170,7 @@ pub enum ConsistencyMetric {
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SpectralParams {
     pub metric: ConsistencyMetric,
     /// σ_d of eq. (7), on the difference of |cos|.
