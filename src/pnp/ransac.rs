@@ -288,15 +288,25 @@ impl Coverage {
 
     /// Ranking cost of a pose, lower is better: minus the number of distinct cells holding an
     /// inlier; the inlier count and the MSAC score (both scaled below one cell) break ties.
-    /// `best`: the cost to beat; a pose that cannot beat it is not checked against the prior.
-    /// Returns (cost, inliers, cells).
-    fn cost(&mut self, data: &Data, pose: &MapToCamera, best: f64) -> (f64, usize, usize) {
+    /// One pass from position `start` (wrapping), as [`Data::score_bounded`]: `None` once SPRT
+    /// rejects the pose or it can no longer cover `best_cells` cells; a pose that cannot beat
+    /// `best` is not checked against the prior. Returns (cost, inliers, cells).
+    fn cost(
+        &mut self,
+        data: &Data,
+        pose: &MapToCamera,
+        (best, best_cells): (f64, usize),
+        sprt: Option<Sprt>,
+        start: usize,
+    ) -> Option<(f64, usize, usize)> {
         let stamp = self.next_stamp();
-        let (mut cells, mut msac) = (0usize, 0.0);
+        let (mut cells, mut msac, mut lambda) = (0usize, 0.0, 0.0);
+        let n_pos = data.pw.len();
         self.inliers.clear();
-        for (i, (p, q)) in data.pw.iter().zip(&data.px).enumerate() {
-            let e2 = reproj_err2(&data.cam, pose, p, q);
-            if e2 < data.th2 {
+        for (k, i) in (start..n_pos).chain(0..start).enumerate() {
+            let e2 = reproj_err2(&data.cam, pose, &data.pw[i], &data.px[i]);
+            let inlier = e2 < data.th2;
+            if inlier {
                 self.inliers.push(i);
                 msac += e2;
                 let c = self.cell[i] as usize;
@@ -307,15 +317,25 @@ impl Coverage {
             } else {
                 msac += data.th2;
             }
+            if cells + (n_pos - k - 1) < best_cells {
+                return None;
+            }
+            if let Some(s) = &sprt {
+                lambda += if inlier { s.log_in } else { s.log_out };
+                if lambda > s.log_a {
+                    return None;
+                }
+            }
         }
+        self.inliers.sort_unstable();
         let n = data.pw.len() as f64;
         let cost = |cells: usize, inliers: usize, msac: f64| {
             -(cells as f64) - 0.5 * inliers as f64 / (n + 1.0) + 0.25 * msac / (n * data.th2 + 1.0)
         };
         let plain = cost(cells, self.inliers.len(), msac);
-        let Some((prior, tolerance)) = &self.prior else { return (plain, self.inliers.len(), cells) };
+        let Some((prior, tolerance)) = &self.prior else { return Some((plain, self.inliers.len(), cells)) };
         if plain >= best {
-            return (plain, self.inliers.len(), cells);
+            return Some((plain, self.inliers.len(), cells));
         }
         // Inliers whose pose depth disagrees with the prior count as outliers.
         self.depths.clear();
@@ -336,14 +356,18 @@ impl Coverage {
                 }
             }
         }
-        (cost(cells, kept, msac), kept, cells)
+        Some((cost(cells, kept, msac), kept, cells))
     }
 }
 
+/// Candidate maps [`depth_agreement`] tries at most (every pair while there are few).
+const DEPTH_MAP_CANDIDATES: usize = 120;
+
 /// Which (prior, depth) pairs agree with one affine map `depth ≈ a·prior + b`, `a > 0`, within
-/// `tolerance`·depth: the map agreed on by the most pairs, tried from every two pairs (a
-/// monocular prior is right up to scale and shift). Pairs with an unknown prior always agree
-/// (no evidence against them); below three known pairs every pair agrees.
+/// `tolerance`·depth: the map agreed on by the most pairs, each candidate defined by two pairs
+/// (a monocular prior is right up to scale and shift) — every two while there are at most
+/// [`DEPTH_MAP_CANDIDATES`], else that many spread deterministically. Pairs with an unknown
+/// prior always agree (no evidence against them); below three known pairs every pair agrees.
 pub(crate) fn depth_agreement(pairs: &[(f64, f64)], tolerance: f64) -> Vec<bool> {
     let known: Vec<usize> = (0..pairs.len()).filter(|&i| pairs[i].0.is_finite() && pairs[i].1 > 0.0).collect();
     let mut best = vec![true; pairs.len()];
@@ -351,24 +375,39 @@ pub(crate) fn depth_agreement(pairs: &[(f64, f64)], tolerance: f64) -> Vec<bool>
         return best;
     }
     let agrees = |a: f64, b: f64, (d, z): (f64, f64)| (z - (a * d + b)).abs() < tolerance * z;
+    let k = known.len();
+    let all_pairs = k * (k - 1) / 2;
+    let candidates: Vec<(usize, usize)> = if all_pairs <= DEPTH_MAP_CANDIDATES {
+        let known = &known;
+        (0..k).flat_map(|x| (x + 1..k).map(move |y| (known[x], known[y]))).collect()
+    } else {
+        // Pairs spread over the index space: (x, x + offset) with offsets drawn by a fixed LCG.
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        (0..DEPTH_MAP_CANDIDATES)
+            .map(|c| {
+                state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                let x = c * k / DEPTH_MAP_CANDIDATES;
+                let y = (x + 1 + (state >> 33) as usize % (k - 1)) % k;
+                (known[x], known[y])
+            })
+            .collect()
+    };
     let mut best_count = 0;
-    for (x, &i) in known.iter().enumerate() {
-        for &j in &known[x + 1..] {
-            let ((di, zi), (dj, zj)) = (pairs[i], pairs[j]);
-            if (di - dj).abs() < 1e-9 {
-                continue;
-            }
-            let a = (zi - zj) / (di - dj);
-            if !(a > 0.0) {
-                continue;
-            }
-            let b = zi - a * di;
-            let count = known.iter().filter(|&&k| agrees(a, b, pairs[k])).count();
-            if count > best_count {
-                best_count = count;
-                for &k in &known {
-                    best[k] = agrees(a, b, pairs[k]);
-                }
+    for (i, j) in candidates {
+        let ((di, zi), (dj, zj)) = (pairs[i], pairs[j]);
+        if (di - dj).abs() < 1e-9 {
+            continue;
+        }
+        let a = (zi - zj) / (di - dj);
+        if !(a > 0.0) {
+            continue;
+        }
+        let b = zi - a * di;
+        let count = known.iter().filter(|&&k| agrees(a, b, pairs[k])).count();
+        if count > best_count {
+            best_count = count;
+            for &k in &known {
+                best[k] = agrees(a, b, pairs[k]);
             }
         }
     }
@@ -541,13 +580,10 @@ pub fn solve_pnp_ransac_with_prior(
             // `support`: what SPRT and the stopping rule count, cells with coverage scoring
             // (never more than the inliers, so both stay conservative), else inliers.
             let (score, inliers, support) = match coverage.as_mut() {
-                // SPRT may still reject; the coverage cost has no running bound.
-                Some(cov) => match data.score_bounded(pose, f64::INFINITY, sprt, start) {
-                    Score::Rejected => continue,
-                    Score::Better(..) => match cov.cost(&data, pose, best_score) {
-                        (c, i, cells) if c < best_score => (c, i, cells),
-                        _ => continue,
-                    },
+                // One pass: cells, SPRT and the cell bound together.
+                Some(cov) => match cov.cost(&data, pose, (best_score, best_support), sprt, start) {
+                    Some((c, i, cells)) if c < best_score => (c, i, cells),
+                    _ => continue,
                 },
                 None => match data.score_bounded(pose, best_score, sprt, start) {
                     Score::Better(score, inliers) => (score, inliers, inliers),
@@ -563,7 +599,10 @@ pub fn solve_pnp_ransac_with_prior(
                     }
                     let (cand, _, _) = lm_refine(&cam, &data.px, &data.pw, &idx_buf, pose, &lo_loss, LO_LM_ITERATIONS);
                     let (cs, ci, csup) = match coverage.as_mut() {
-                        Some(cov) => cov.cost(&data, &cand, score),
+                        Some(cov) => match cov.cost(&data, &cand, (score, support), None, 0) {
+                            Some(c) => c,
+                            None => break,
+                        },
                         None => {
                             let (cs, ci) = data.score_full(&cand);
                             (cs, ci, ci)
