@@ -160,6 +160,12 @@ impl PointIndex {
     }
 
     /// Indices of the `k` nearest points to `query`, nearest first.
+    /// The index of the point nearest to `query` (`None` when empty).
+    pub fn nearest_one(&self, query: &Point3<f32>) -> Option<usize> {
+        let tree = self.tree.as_ref()?;
+        Some(tree.query(&[query.x, query.y, query.z]).nearest_one::<SquaredEuclidean<f32>>().execute().item as usize)
+    }
+
     pub fn nearest(&self, query: &Point3<f32>, k: usize) -> Vec<usize> {
         let k = k.min(self.len);
         let (Some(k), Some(tree)) = (std::num::NonZero::new(k), &self.tree) else { return Vec::new() };
@@ -303,6 +309,8 @@ mod tests {
         let pts: Vec<_> = (0..100).map(|i| Point3::new(i as f32, 0.0, 0.0)).collect();
         let idx = PointIndex::new(&pts);
         assert_eq!(idx.nearest(&Point3::new(41.2, 0.0, 0.0), 3), vec![41, 42, 40]);
+        assert_eq!(idx.nearest_one(&Point3::new(41.7, 0.0, 0.0)), Some(42));
+        assert_eq!(PointIndex::new(&[]).nearest_one(&Point3::origin()), None);
     }
 
     #[test]

@@ -57,7 +57,7 @@ pub fn map_normals(map: &IndexedMap, geometry: &FrameGeometry) -> Vec<Vector3<f6
         .map_points
         .iter()
         .map(|q| {
-            let Some(&nearest) = map.index.nearest(&q.cast::<f32>(), 1).first() else { return Vector3::zeros() };
+            let Some(nearest) = map.index.nearest_one(&q.cast::<f32>()) else { return Vector3::zeros() };
             let n: Vector3<f64> = map.normals[nearest].cast();
             if n.dot(&(towards - q)) < 0.0 {
                 -n
