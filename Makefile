@@ -4,7 +4,7 @@ VENV := .venv
 CARGO ?= cargo
 DEMO_BAG := bags/synth-hard
 
-.PHONY: all build demo test py-venv bench bags ort training-env clean
+.PHONY: all build demo test py-venv bench bags ort training-env ablations clean
 
 all: build
 
@@ -18,12 +18,17 @@ $(VENV)/.stamp: scripts/requirements-eval.txt
 	$(VENV)/bin/pip install --quiet --disable-pip-version-check -r scripts/requirements-eval.txt
 	touch $@
 
-# Main job on shipped data: replay a synthetic bag with the consistency rejector, then score it.
-demo: build
-	rm -rf out/demo-ransac out/demo-consistency
-	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo-ransac --method ransac
+# Main job on shipped data: replay a synthetic bag with each method, then score them.
+demo: build ort
+	rm -rf out/demo-angle-i2p out/demo-consistency out/demo-ransac
+	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo-angle-i2p --method angle-i2p
 	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo-consistency --method consistency
-	./target/release/angle-i2p eval $(DEMO_BAG) --est out/demo-ransac --est out/demo-consistency
+	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo-ransac --method ransac
+	./target/release/angle-i2p eval $(DEMO_BAG) --est out/demo-angle-i2p --est out/demo-consistency --est out/demo-ransac
+
+# The paper's ablations on the shared validation bags, each scored by eval (needs ../shared/data).
+ablations: build ort
+	./scripts/ablations.sh
 
 # All tests (unit, integration, Python-reader interop, evaluator agreement when ../shared is present).
 test: py-venv ort

@@ -20,9 +20,9 @@ pub enum Method {
     /// No rejection: LO-RANSAC on the raw correspondences (the baseline row).
     Ransac,
     /// Spectral scoring of the pairwise consistency matrix, then score-ordered LO-RANSAC.
-    #[default]
     Consistency,
     /// The learned Angle-I2P network (ONNX Runtime), then score-ordered LO-RANSAC.
+    #[default]
     #[value(name = "angle-i2p")]
     #[serde(rename = "angle-i2p")]
     AngleI2p,

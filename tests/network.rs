@@ -91,3 +91,22 @@ fn onnx_runtime_scores_equal_pytorch_scores() {
     let torch = f32s(&sample_dir(), "scores_torch");
     assert_close(&scores, &torch, 1e-4, "scores");
 }
+
+/// A model that declares fewer inputs (the no-global-attention ablation has no global ones) is
+/// fed just those, and scores every correspondence.
+#[test]
+fn a_model_without_global_inputs_runs_on_the_same_inputs() {
+    let params = NetworkParams {
+        model_path: manifest().join("models/ablations/no_global.onnx").display().to_string(),
+        onnxruntime_path: manifest().join(runtime_path(&NetworkParams::default())).display().to_string(),
+        ..NetworkParams::default()
+    };
+    if !Path::new(&params.onnxruntime_path).exists() {
+        return skip_or_fail(&format!("no ONNX Runtime at {} (make ort)", params.onnxruntime_path));
+    }
+    let mut rejector = NetworkRejector::new(params, Default::default()).unwrap();
+    let inputs = stored_inputs();
+    let scores = rejector.run(&inputs).unwrap();
+    assert_eq!(scores.len(), inputs.features.len());
+    assert!(scores.iter().all(|s| (0.0..=1.0).contains(s)));
+}

@@ -17,7 +17,7 @@ mkdir -p ../models/ablations
 train() { # data out [flags]
   local data=$1 out=$2; shift 2
   $py train.py --train "data/$data/train" --val "data/$data/val/hard-val" "data/$data/val/extreme-val" \
-    --out "$out" --epochs "$epochs" "$@" > "${out%.onnx}.log" 2>&1
+    --out "$out" --epochs "$epochs" --alpha 0.9 --threads 1 "$@" > "${out%.onnx}.log" 2>&1
 }
 train angle ../models/angle_i2p.onnx --matcher-score
 train angle ../models/ablations/no_global.onnx --matcher-score --no-global

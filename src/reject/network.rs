@@ -29,7 +29,7 @@ pub struct NetworkParams {
     /// ONNX Runtime's shared library; empty: `ORT_DYLIB_PATH`, then `.ort/` + the library name.
     pub onnxruntime_path: String,
     /// Keep correspondences with score ≥ τ …
-    pub tau: f32,
+    pub tau: f64,
     /// … but at least this many (the best ones), so PnP always has material.
     pub min_keep: usize,
     /// Intra-op threads of the session (1: one core per node instance).
@@ -75,7 +75,7 @@ impl Default for NetworkParams {
             theta: g.theta,
             sigma_d: g.sigma_d,
             align_prior: true,
-            keypoint_iterations: 10,
+            keypoint_iterations: 4,
             keypoint_ranking: KeypointRanking::default(),
         }
     }
@@ -234,7 +234,7 @@ impl Rejector for NetworkRejector {
         let inputs = self.inputs(geometry);
         let scores = self.run(&inputs)?;
         let mut kept: Vec<usize> = top_k(&scores, scores.len());
-        let above = kept.iter().take_while(|&&i| scores[i] >= self.params.tau).count();
+        let above = kept.iter().take_while(|&&i| f64::from(scores[i]) >= self.params.tau).count();
         kept.truncate(above.max(self.params.min_keep).min(scores.len()));
         Ok(Rejection { scores, kept })
     }
