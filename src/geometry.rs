@@ -147,8 +147,9 @@ pub struct PointIndex {
 impl PointIndex {
     pub fn new(points: &[Point3<f32>]) -> Self {
         let entries: Vec<[f32; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
-        // Construction fails only for an empty set, which then answers no neighbours.
-        Self { tree: ImmutableKdTree::new_from_slice(&entries).ok(), len: points.len() }
+        // An empty set gets no tree and answers no neighbours.
+        let tree = if entries.is_empty() { None } else { ImmutableKdTree::new_from_slice(&entries).ok() };
+        Self { tree, len: points.len() }
     }
 
     pub fn len(&self) -> usize {
@@ -159,13 +160,13 @@ impl PointIndex {
         self.len == 0
     }
 
-    /// Indices of the `k` nearest points to `query`, nearest first.
     /// The index of the point nearest to `query` (`None` when empty).
     pub fn nearest_one(&self, query: &Point3<f32>) -> Option<usize> {
         let tree = self.tree.as_ref()?;
         Some(tree.query(&[query.x, query.y, query.z]).nearest_one::<SquaredEuclidean<f32>>().execute().item as usize)
     }
 
+    /// Indices of the `k` nearest points to `query`, nearest first.
     pub fn nearest(&self, query: &Point3<f32>, k: usize) -> Vec<usize> {
         let k = k.min(self.len);
         let (Some(k), Some(tree)) = (std::num::NonZero::new(k), &self.tree) else { return Vec::new() };
