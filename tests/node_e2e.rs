@@ -15,8 +15,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use angle_i2p::bag::{read_frames, BagReader, TopicMap};
-use angle_i2p::frame::Frame;
+use angle_i2p::bag::{read_frames, BagFrames, BagReader, TopicMap};
 use angle_i2p::msgs::{self, convert, from_cdr};
 use angle_i2p::node::dds;
 use angle_i2p::node::diagnostics::status_value;
@@ -206,10 +205,20 @@ fn play_command_of(bag: &Path) -> Command {
     play
 }
 
-/// What `replay` computes: the localizer on every frame of the bag, by stamp.
-fn expected_poses(frames: &[Frame]) -> HashMap<i64, Option<nalgebra::Isometry3<f64>>> {
+/// The localizer the node runs, with the bag's map set as the node sets it when the map arrives
+/// (the network's inputs use the map's normals).
+fn localizer_for(input: &BagFrames) -> Localizer {
     let mut localizer = Localizer::new(Params::default());
-    frames.iter().map(|f| (f.stamp, localizer.process(f).pose)).collect()
+    if let Some(map) = &input.map {
+        localizer.set_map(map);
+    }
+    localizer
+}
+
+/// What `replay` computes: the localizer on every frame of the bag, by stamp.
+fn expected_poses(input: &BagFrames) -> HashMap<i64, Option<nalgebra::Isometry3<f64>>> {
+    let mut localizer = localizer_for(input);
+    input.frames.iter().map(|f| (f.stamp, localizer.process(f).pose)).collect()
 }
 
 /// The first number under `key` anywhere in `v` (a row of a JSON report).
@@ -254,7 +263,7 @@ fn inner_live_pose_matches_replay() {
         return;
     };
     let input = read_frames(bag(), &TopicMap::default()).expect("read bag");
-    let expected = expected_poses(&input.frames);
+    let expected = expected_poses(&input);
     let posed = expected.values().filter(|p| p.is_some()).count();
     assert!(posed > 0);
 
@@ -340,7 +349,7 @@ fn inner_bad_input() {
     enter_netns("live_bad_input_is_counted_and_the_node_keeps_going");
     let input = read_frames(bag(), &TopicMap::default()).expect("read bag");
     let map = input.map.clone().expect("map");
-    let mut localizer = Localizer::new(Params::default());
+    let mut localizer = localizer_for(&input);
     let good = input.frames.iter().find(|f| localizer.process(f).pose.is_some()).cloned().expect("a frame with a pose");
 
     let tmp = tempfile::tempdir().expect("tmp");
@@ -423,7 +432,7 @@ fn inner_bad_input() {
     publish(s(6), true, Some(good_corr(s(6))), Some(good_prior(s(6))));
     let mut frame6 = good.clone();
     frame6.stamp = s(6);
-    let want = Localizer::new(Params::default()).process(&frame6).pose.expect("pose");
+    let want = localizer_for(&input).process(&frame6).pose.expect("pose");
     let end = Instant::now() + Duration::from_secs(20);
     let pose = loop {
         if let Ok(Some((p, _))) = pose_sub.take() {
@@ -588,7 +597,7 @@ fn inner_player_restart() {
         return;
     };
     let input = read_frames(bag(), &TopicMap::default()).expect("read bag");
-    let expected = expected_poses(&input.frames);
+    let expected = expected_poses(&input);
     let posed = expected.values().filter(|p| p.is_some()).count();
     assert!(posed > 3);
 
@@ -729,7 +738,7 @@ fn inner_debug_image() {
     let input = read_frames(bag(), &TopicMap::default()).expect("read bag");
     let frames = &input.frames;
     assert!(frames.iter().all(|f| f.image.is_some()), "the synth bag carries an image per frame");
-    let mut localizer = Localizer::new(Params::default());
+    let mut localizer = localizer_for(&input);
     let kept: HashMap<i64, Vec<angle_i2p::frame::Correspondence>> =
         frames.iter().map(|f| (f.stamp, localizer.process(f).kept)).collect();
 
@@ -829,7 +838,7 @@ fn inner_raw_image_and_odom_tf() {
     enter_netns("live_raw_image_and_odom_tf");
     let input = read_frames(bag(), &TopicMap::default()).expect("read bag");
     let map = input.map.clone().expect("map");
-    let mut localizer = Localizer::new(Params::default());
+    let mut localizer = localizer_for(&input);
     let (good, loc) = input
         .frames
         .iter()
