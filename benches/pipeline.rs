@@ -4,7 +4,8 @@
 //! rejection, the learned rejector (when ONNX Runtime is there: `make ort`) and plain LO-RANSAC,
 //! measured in the same run.
 //!
-//! `cargo bench --bench pipeline`
+//! `cargo bench --bench pipeline`; `ANGLE_I2P_BENCH_MODELS=a.onnx,b.onnx` also times the network
+//! alone for other model files (same inputs), for the size/latency trade-off.
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -60,6 +61,18 @@ fn bench(c: &mut Criterion) {
             group.bench_with_input(BenchmarkId::new("network_run", n), &inputs, |b, i| {
                 b.iter(|| network.run(black_box(i)).expect("scores"))
             });
+            for path in extra_models() {
+                let params = NetworkParams { model_path: path.clone(), ..NetworkParams::default() };
+                let Ok(mut other) = NetworkRejector::new(params, SpectralParams::default()) else {
+                    eprintln!("skipping {path}: cannot load it");
+                    continue;
+                };
+                let name = std::path::Path::new(&path).file_stem().map(|s| s.to_string_lossy().into_owned());
+                let id = format!("network_run_{}", name.unwrap_or_default());
+                group.bench_with_input(BenchmarkId::new(id, n), &inputs, |b, i| {
+                    b.iter(|| other.run(black_box(i)).expect("scores"))
+                });
+            }
         }
         for method in [Method::Ransac, Method::Consistency, Method::AngleI2p] {
             let mut localizer = Localizer::new(Params { method, ..Params::default() });
@@ -76,6 +89,13 @@ fn bench(c: &mut Criterion) {
         }
     }
     group.finish();
+}
+
+/// Model files named in `ANGLE_I2P_BENCH_MODELS` (comma-separated).
+fn extra_models() -> Vec<String> {
+    std::env::var("ANGLE_I2P_BENCH_MODELS")
+        .map(|v| v.split(',').filter(|p| !p.trim().is_empty()).map(|p| p.trim().to_string()).collect())
+        .unwrap_or_default()
 }
 
 criterion_group!(benches, bench);

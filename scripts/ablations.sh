@@ -3,7 +3,8 @@
 # `angle-i2p eval`: the method; its trained ablation models (no global attention, distance θ, no
 # scale alignment, no matcher score); keypoints by spectral score only; τ ∈ {0.1, 0.2, 0.4, 0.5};
 # the PnP without the prior check and with plain inlier counting; the training-free rejectors
-# (distance and angle spectral consistency) and plain LO-RANSAC.
+# (distance and angle spectral consistency; also with ≥ 1500 PnP iterations, which spends about
+# the network's time per frame) and plain LO-RANSAC.
 #   scripts/ablations.sh [BAG ...]   (default: ../shared/data/redkitchen-{extreme,hard}-val)
 # Needs `make build ort`. Output bags go to out/ablations/<bag>/<row>.
 set -euo pipefail
@@ -24,6 +25,8 @@ rows=(
   "tau-0.5|--method angle-i2p -p network.tau:=0.5"
   "consistency-distance|--method consistency"
   "consistency-angle|--method consistency -p spectral.metric:=angle"
+  "consistency-distance-equal-time|--method consistency -p pnp.min_iterations:=1500"
+  "consistency-angle-equal-time|--method consistency -p spectral.metric:=angle -p pnp.min_iterations:=1500"
   "ransac|--method ransac"
   "ransac-count-scoring|--method ransac -p pnp.coverage_cell_px:=0"
   "angle-i2p-no-prior-check|--method angle-i2p -p pnp.prior_tolerance:=0"

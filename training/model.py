@@ -80,10 +80,20 @@ class AngleI2PNet(nn.Module):
         self.blocks = nn.ModuleList(Block(d, use_global) for _ in range(blocks))
         self.head = nn.Sequential(nn.Linear(d, d), nn.ReLU(), nn.Linear(d, 1))
 
-    def forward(self, features, local_index, local_theta, global_index, global_theta, cross_theta, matcher_score=None):
+    def embed_correspondences(self, features, local_index, local_theta, global_index, global_theta, cross_theta,
+                              matcher_score=None):
+        """The per-correspondence features [N, d] after the attention blocks (what the head scores)."""
         if self.use_matcher_score:
             features = torch.cat([features, matcher_score.unsqueeze(-1)], dim=-1)
         f = self.embed(features)
         for block in self.blocks:
             f = block(f, local_index, local_theta, global_index, global_theta, cross_theta)
+        return f
+
+    def score(self, f):
         return torch.sigmoid(self.head(f)).squeeze(-1)
+
+    def forward(self, features, local_index, local_theta, global_index, global_theta, cross_theta, matcher_score=None):
+        f = self.embed_correspondences(features, local_index, local_theta, global_index, global_theta, cross_theta,
+                                       matcher_score)
+        return self.score(f)

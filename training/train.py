@@ -22,6 +22,24 @@ def focal_loss(score, label, gamma=2.0, alpha=0.75):
     return (-w * (1 - pt) ** gamma * pt.log()).mean()
 
 
+def feature_consistency_loss(f, label, pairs=256):
+    """GraphSCNet's second term: the cosine similarity of two correspondences' features, mapped
+    to [0, 1], should be 1 exactly when both are inliers. Class-balanced BCE over the pairs of up
+    to `pairs` random labelled correspondences."""
+    valid = torch.nonzero(label >= 0).squeeze(-1)
+    if valid.numel() > pairs:
+        valid = valid[torch.randperm(valid.numel())[:pairs]]
+    y = (label[valid] > 0.5).float()
+    g = torch.nn.functional.normalize(f[valid], dim=-1)
+    sim = ((g @ g.T + 1) / 2).clamp(1e-6, 1 - 1e-6)
+    target = y[:, None] * y[None, :]
+    pos, neg = target > 0.5, target < 0.5
+    loss = -(1 - sim[neg]).log().mean()
+    if pos.any():
+        loss = loss - sim[pos].log().mean()
+    return loss
+
+
 def metrics(model, samples, tau):
     """Precision/recall of score ≥ τ, and precision of the top-40 scores, over labelled points."""
     tp = fp = fn = 0
@@ -68,6 +86,8 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--alpha", type=float, default=0.75, help="focal loss weight of the inlier class")
+    ap.add_argument("--consistency-weight", type=float, default=0.0,
+                    help="weight of the feature-consistency loss (GraphSCNet), 0: focal loss only")
     a = ap.parse_args()
     torch.manual_seed(a.seed); random.seed(a.seed)
     torch.set_num_threads(a.threads)
@@ -82,7 +102,10 @@ def main():
         t0, total = time.time(), 0.0
         model.train()
         for s in train:
-            loss = focal_loss(model(*[s[k] for k in model.input_names]), s["labels"], alpha=a.alpha)
+            f = model.embed_correspondences(*[s[k] for k in model.input_names])
+            loss = focal_loss(model.score(f), s["labels"], alpha=a.alpha)
+            if a.consistency_weight > 0:
+                loss = loss + a.consistency_weight * feature_consistency_loss(f, s["labels"])
             opt.zero_grad(); loss.backward(); opt.step(); sched.step()
             total += loss.item()
         model.eval()
