@@ -21,10 +21,10 @@ pub struct ConsistencyMatrix {
 }
 
 impl ConsistencyMatrix {
-    /// Resizes to `n × n` (reusing the allocation) and zeroes the diagonal.
+    /// Resizes to `n × n`, reusing the allocation. The builders overwrite every entry, so a
+    /// matrix of the same size is not cleared first (that would be one more pass over n² values).
     fn reset(&mut self, n: usize) {
         self.n = n;
-        self.values.clear();
         self.values.resize(n * n, 0.0);
     }
 
@@ -57,6 +57,7 @@ pub fn angle_consistency(
     let inv_sigma2 = (1.0 / (sigma_d * sigma_d)) as f32;
     for i in 0..n {
         let (oi, pi) = (unit_i[i], unit_p[i]);
+        out.values[i * n + i] = 0.0;
         for j in (i + 1)..n {
             let cos_i = oi.dot(&unit_i[j]).abs();
             let cos_p = pi.dot(&unit_p[j]).abs();
@@ -463,6 +464,22 @@ mod tests {
         let mut rng = SplitMix64(seed);
         let mut u = || rng.next() as f64 / u64::MAX as f64;
         (0..n).map(|_| Point3::new(u() * 4.0 - 2.0, u() * 3.0 - 1.5, 1.0 + u() * 4.0)).collect()
+    }
+
+    #[test]
+    fn a_reused_matrix_equals_a_fresh_one() {
+        let (a, b) = (cloud(1, 40), cloud(2, 40));
+        for build in [
+            |x: &[Point3<f64>], y: &[Point3<f64>], m: &mut ConsistencyMatrix| angle_consistency(x, y, None, 0.2, m),
+            |x: &[Point3<f64>], y: &[Point3<f64>], m: &mut ConsistencyMatrix| distance_consistency(x, y, 0.05, 0.1, m),
+        ] {
+            let mut reused = ConsistencyMatrix { n: 40, values: vec![7.0; 40 * 40] };
+            build(&a, &b, &mut reused);
+            let mut fresh = ConsistencyMatrix::default();
+            build(&a, &b, &mut fresh);
+            assert_eq!(reused.values, fresh.values);
+            assert!((0..40).all(|i| reused.get(i, i) == 0.0));
+        }
     }
 
     fn pose() -> Isometry3<f64> {

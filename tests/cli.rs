@@ -44,7 +44,8 @@ fn default_method_is_the_learned_rejector() {
 /// `-p NAME:=VALUE` overrides a parameter at any depth; a misspelt name is an error naming it.
 #[test]
 fn parameter_overrides_apply_and_typos_are_errors() {
-    let text = run_ok(Command::new(binary()).args(["params", "-p", "network.tau:=0.5", "-p", "pnp.coverage_cell_px:=0"]));
+    let text =
+        run_ok(Command::new(binary()).args(["params", "-p", "network.tau:=0.5", "-p", "pnp.coverage_cell_px:=0"]));
     assert!(text.contains("tau: 0.5") && text.contains("coverage_cell_px: 0.0"), "{text}");
     let out = Command::new(binary()).args(["params", "-p", "network.tauu:=0.5"]).output().unwrap();
     assert!(!out.status.success());

@@ -158,4 +158,3 @@ fn learned_rejection_on_real_extreme_and_hard_val() {
     assert!(s.rr >= 95.0, "hard RR {:.1} %", s.rr);
     assert!(s.ir >= 2.0 * raw_ir, "hard IR {:.1} % vs raw {raw_ir:.1} %", s.ir);
 }
-
