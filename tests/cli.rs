@@ -4,7 +4,7 @@
 use std::process::Command;
 
 mod common;
-use common::{binary, manifest, python, run_ok, shared_bag, skip_or_fail};
+use common::{binary, manifest, onnx_runtime, python, run_ok, shared_bag, skip_or_fail};
 
 #[test]
 fn synth_replay_eval_round_trip() {
@@ -28,9 +28,8 @@ fn synth_replay_eval_round_trip() {
 /// Without `--method` replay runs the default, the learned rejector (when ONNX Runtime is there).
 #[test]
 fn default_method_is_the_learned_rejector() {
-    let runtime = angle_i2p::reject::network::runtime_path(&Default::default());
-    if !runtime.exists() {
-        return skip_or_fail(&format!("no ONNX Runtime at {} (make ort)", runtime.display()));
+    if onnx_runtime().is_none() {
+        return;
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("default");

@@ -9,11 +9,11 @@ use angle_i2p::npy;
 use angle_i2p::params::Params;
 use angle_i2p::reject::graph::Graphs;
 use angle_i2p::reject::inputs::{build_inputs, IndexedMap, NetworkInputs};
-use angle_i2p::reject::network::{runtime_path, NetworkParams, NetworkRejector};
+use angle_i2p::reject::network::{NetworkParams, NetworkRejector};
 use angle_i2p::reject::{FrameGeometry, SpectralRejector};
 
 mod common;
-use common::{manifest, skip_or_fail};
+use common::{manifest, onnx_runtime};
 
 fn sample_dir() -> PathBuf {
     manifest().join("models/parity/sample")
@@ -76,17 +76,20 @@ fn rust_inputs_are_reproduced_exactly() {
     assert_close(&now.graphs.cross_theta, &stored.graphs.cross_theta, 1e-6, "cross θ");
 }
 
-#[test]
-fn onnx_runtime_scores_equal_pytorch_scores() {
+/// The rejector running the shipped model file `model` (under `models/`); `None` (skipped, a
+/// failure in CI) without ONNX Runtime.
+fn rejector(model: &str) -> Option<NetworkRejector> {
     let params = NetworkParams {
-        model_path: manifest().join("models/angle_i2p.onnx").display().to_string(),
-        onnxruntime_path: manifest().join(runtime_path(&NetworkParams::default())).display().to_string(),
+        model_path: manifest().join("models").join(model).display().to_string(),
+        onnxruntime_path: onnx_runtime()?.display().to_string(),
         ..NetworkParams::default()
     };
-    if !Path::new(&params.onnxruntime_path).exists() {
-        return skip_or_fail(&format!("no ONNX Runtime at {} (make ort)", params.onnxruntime_path));
-    }
-    let mut rejector = NetworkRejector::new(params, Default::default()).unwrap();
+    Some(NetworkRejector::new(params, Default::default()).unwrap())
+}
+
+#[test]
+fn onnx_runtime_scores_equal_pytorch_scores() {
+    let Some(mut rejector) = rejector("angle_i2p.onnx") else { return };
     let scores = rejector.run(&stored_inputs()).unwrap();
     let torch = f32s(&sample_dir(), "scores_torch");
     assert_close(&scores, &torch, 1e-4, "scores");
@@ -96,15 +99,7 @@ fn onnx_runtime_scores_equal_pytorch_scores() {
 /// fed just those, and scores every correspondence.
 #[test]
 fn a_model_without_global_inputs_runs_on_the_same_inputs() {
-    let params = NetworkParams {
-        model_path: manifest().join("models/ablations/no_global.onnx").display().to_string(),
-        onnxruntime_path: manifest().join(runtime_path(&NetworkParams::default())).display().to_string(),
-        ..NetworkParams::default()
-    };
-    if !Path::new(&params.onnxruntime_path).exists() {
-        return skip_or_fail(&format!("no ONNX Runtime at {} (make ort)", params.onnxruntime_path));
-    }
-    let mut rejector = NetworkRejector::new(params, Default::default()).unwrap();
+    let Some(mut rejector) = rejector("ablations/no_global.onnx") else { return };
     let inputs = stored_inputs();
     let scores = rejector.run(&inputs).unwrap();
     assert_eq!(scores.len(), inputs.features.len());

@@ -10,7 +10,7 @@ use angle_i2p::pipeline::{Failure, Localizer, Method};
 use angle_i2p::synth::{generate, SynthConfig};
 
 mod common;
-use common::{shared_bag, skip_or_fail};
+use common::{onnx_runtime, shared_bag};
 
 fn localize_all(frames: &[Frame], method: Method) -> (Vec<FrameMetrics>, f64) {
     localize_all_with_map(frames, None, method)
@@ -133,22 +133,12 @@ fn consistency_accuracy_on_real_sift_val() {
     assert!(s.mre.unwrap() <= 0.62 && s.mte.unwrap() <= 0.017, "{s:?}");
 }
 
-/// ONNX Runtime is there (`make ort`); otherwise the learned-rejector tests skip (fail in CI).
-fn onnx_runtime_available() -> bool {
-    let path = angle_i2p::reject::network::runtime_path(&Default::default());
-    let found = path.exists();
-    if !found {
-        skip_or_fail(&format!("no ONNX Runtime at {} (make ort)", path.display()));
-    }
-    found
-}
-
 /// The learned rejector's bars on real data (issue #3): on `redkitchen-extreme-val` RR at
 /// least 15 points above PoseLib LO-RANSAC's 25 %; on `redkitchen-hard-val` RR ≥ 95 % with at
 /// least twice the raw inlier ratio.
 #[test]
 fn learned_rejection_on_real_extreme_and_hard_val() {
-    if !onnx_runtime_available() {
+    if onnx_runtime().is_none() {
         return;
     }
     let Some((s, raw_ir)) = real_bag_summary("redkitchen-extreme-val", Method::AngleI2p) else { return };

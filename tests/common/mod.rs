@@ -36,6 +36,17 @@ pub fn skip_or_fail(reason: &str) {
     eprintln!("SKIP: {reason}");
 }
 
+/// ONNX Runtime's library where the learned rejector looks for it (`make ort`); `None`, after
+/// [`skip_or_fail`], when it is missing.
+pub fn onnx_runtime() -> Option<PathBuf> {
+    let path = angle_i2p::reject::network::runtime_path(&Default::default());
+    if path.exists() {
+        return Some(path);
+    }
+    skip_or_fail(&format!("no ONNX Runtime at {} (make ort)", path.display()));
+    None
+}
+
 /// The release or debug `angle-i2p` binary built for this test run.
 pub fn binary() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_angle-i2p"))
