@@ -2,7 +2,7 @@
 //! (Angle-I2P) and localize a camera against a point map with robust PnP.
 //!
 //! Data flows one way: messages → [`frame::Frame`] → rejection → pose → messages.
-//! The core (`geometry`, `consistency`, `reject`, `pnp`, `pipeline`, `eval`) is pure and
+//! The core (`geometry`, `consistency`, `reject`, `pnp`, `verify`, `pipeline`, `eval`) is pure and
 //! free of I/O; `msgs` and `bag` are the edges.
 
 pub mod app;
@@ -20,3 +20,4 @@ pub mod play;
 pub mod pnp;
 pub mod reject;
 pub mod synth;
+pub mod verify;

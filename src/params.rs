@@ -13,6 +13,7 @@ use crate::pipeline::{FinalRefine, Method};
 use crate::pnp::PnpParams;
 use crate::reject::network::NetworkParams;
 use crate::reject::SpectralParams;
+use crate::verify::VerifyParams;
 
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -29,6 +30,8 @@ pub struct Params {
     pub network: NetworkParams,
     /// Robust PnP.
     pub pnp: PnpParams,
+    /// Verification of PnP's best hypotheses against the dense depth prior.
+    pub verify: VerifyParams,
     /// Last refinement on every correspondence agreeing with the pose.
     pub final_refine: FinalRefine,
     /// Seed of every random choice (results are reproducible).

@@ -9,9 +9,12 @@ use serde::{Deserialize, Serialize};
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::params::Params;
-use crate::pnp::{pose_covariance, refine_pose, solve_pnp_ransac_with_prior, PnpError, RefineOptions, RobustLoss};
+use crate::pnp::{
+    pose_covariance, refine_pose, solve_pnp_ransac_guided, Guidance, PnpError, RefineOptions, RobustLoss, Verification,
+};
 use crate::reject::network::NetworkRejector;
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
+use crate::verify::{PriorVerifier, RenderMap};
 
 /// How outliers are rejected before PnP.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -132,6 +135,8 @@ pub struct Localizer {
     rejector: Option<Box<dyn Rejector>>,
     /// Why the method's rejector could not be set up (every frame then fails with it).
     setup_error: Option<String>,
+    /// The map subsample that PnP's hypotheses are rendered from for verification.
+    render_map: RenderMap,
 }
 
 impl Localizer {
@@ -148,7 +153,7 @@ impl Localizer {
                 }
             },
         };
-        Self { params, rejector, setup_error }
+        Self { params, rejector, setup_error, render_map: RenderMap::default() }
     }
 
     /// Why the configured method cannot run (e.g. ONNX Runtime or the model is missing).
@@ -161,6 +166,10 @@ impl Localizer {
         if let Some(r) = self.rejector.as_mut() {
             r.set_map(map);
         }
+        self.render_map = match self.params.verify.enabled {
+            true => RenderMap::new(&map.points, self.params.verify.max_map_points),
+            false => RenderMap::default(),
+        };
     }
 
     pub fn params(&self) -> &Params {
@@ -231,15 +240,27 @@ impl Localizer {
         let scores: Option<Vec<f32>> = rejection.as_ref().map(|r| subset.iter().map(|&i| r.scores[i]).collect());
         let priors: Option<Vec<f64>> =
             geometry.has_prior().then(|| subset.iter().map(|&i| geometry.prior_depth[i]).collect());
-        let solved = solve_pnp_ransac_with_prior(
-            &frame.intrinsics,
-            &pixels,
-            &points,
-            scores.as_deref(),
-            priors.as_deref(),
-            &self.params.pnp,
-            self.params.seed,
-        );
+        let verify = &self.params.verify;
+        let verifier = match (&frame.depth_prior, verify.enabled) {
+            (Some(prior), true) => {
+                PriorVerifier::new(&self.render_map, prior, self.params.depth_kind, &frame.intrinsics, verify)
+            }
+            _ => None,
+        };
+        let guidance = Guidance {
+            scores: scores.as_deref(),
+            prior_depths: priors.as_deref(),
+            verification: verifier.as_ref().map(|v| Verification {
+                verifier: v,
+                candidates: verify.candidates,
+                coverage_weight: verify.coverage_weight,
+                min_iterations: verify.min_iterations,
+                accept: verify.accept,
+                max_iterations: verify.max_iterations,
+            }),
+        };
+        let solved =
+            solve_pnp_ransac_guided(&frame.intrinsics, &pixels, &points, &guidance, &self.params.pnp, self.params.seed);
         out.timings.pnp_ms = ms_since(t);
         match solved {
             Ok(mut solution) => {

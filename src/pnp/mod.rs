@@ -37,7 +37,7 @@ use thiserror::Error;
 pub use epnp::epnp;
 pub use lm::{pose_covariance, refine_pose, RefineOptions, RefineResult};
 pub use p3p::{p3p, P3pSolutions};
-pub use ransac::{solve_pnp_nonminimal, solve_pnp_ransac, solve_pnp_ransac_with_prior};
+pub use ransac::{solve_pnp_nonminimal, solve_pnp_ransac, solve_pnp_ransac_guided, solve_pnp_ransac_with_prior};
 
 /// Why a PnP solve produced no pose.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -116,6 +116,38 @@ impl Default for PnpParams {
             prior_tolerance: 0.2,
         }
     }
+}
+
+/// Evidence about a camera-to-map pose beyond the correspondences, e.g. how the map rendered at
+/// it agrees with a dense depth prior; higher is better, in [0, 1].
+pub trait PoseVerifier {
+    fn verify(&self, pose: &Isometry3<f64>) -> f64;
+}
+
+/// A verifier and how [`solve_pnp_ransac_guided`] uses it: it keeps the `candidates` best
+/// distinct hypotheses by coverage, draws at least `min_iterations`, and returns the one with the most agreement +
+/// `coverage_weight`·(cells / the most cells of any candidate).
+#[derive(Clone, Copy)]
+pub struct Verification<'a> {
+    pub verifier: &'a dyn PoseVerifier,
+    pub candidates: usize,
+    pub coverage_weight: f64,
+    /// Hypotheses drawn at least (the verifier can only choose one that was drawn); the pool is
+    /// verified after as many samples again, until a candidate's agreement reaches `accept`
+    /// (or `max_iterations`, if more than PnP's own).
+    pub min_iterations: usize,
+    pub accept: f64,
+    pub max_iterations: usize,
+}
+
+/// What guides [`solve_pnp_ransac_guided`] beyond the correspondences; each part optional.
+#[derive(Clone, Copy, Default)]
+pub struct Guidance<'a> {
+    /// One per correspondence, higher = more likely correct: PROSAC sampling.
+    pub scores: Option<&'a [f32]>,
+    /// Prior depth per correspondence (affine-ambiguous, NaN where unknown).
+    pub prior_depths: Option<&'a [f64]>,
+    pub verification: Option<Verification<'a>>,
 }
 
 /// Result of [`solve_pnp_ransac`].

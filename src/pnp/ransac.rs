@@ -12,7 +12,7 @@ use super::lm::{
 };
 use super::p3p::p3p_unit;
 use super::rng::WyRand;
-use super::{MapToCamera, PnpError, PnpParams, PnpSolution, RobustLoss};
+use super::{Guidance, MapToCamera, PnpError, PnpParams, PnpSolution, RobustLoss, Verification};
 use crate::geometry::Intrinsics;
 use nalgebra::{Matrix3, Point2, Point3, SymmetricEigen, Vector2, Vector3};
 
@@ -327,7 +327,10 @@ impl Coverage {
                 }
             }
         }
-        self.inliers.sort_unstable();
+        // Visited from `start`, wrapping: two ascending runs, the wrapped one first.
+        let wrapped = self.inliers.iter().take_while(|&&i| i >= start).count();
+        self.inliers.rotate_left(wrapped);
+        debug_assert!(self.inliers.is_sorted());
         let n = data.pw.len() as f64;
         let cost = |cells: usize, inliers: usize, msac: f64| {
             -(cells as f64) - 0.5 * inliers as f64 / (n + 1.0) + 0.25 * msac / (n * data.th2 + 1.0)
@@ -360,8 +363,136 @@ impl Coverage {
     }
 }
 
+/// A hypothesis kept for verification: its pose, ranking cost, covered cells and inliers.
+struct Candidate {
+    pose: MapToCamera,
+    cost: f64,
+    cells: usize,
+    inliers: usize,
+    /// Inlier positions as a bit set, for the cluster test.
+    members: Vec<u64>,
+    /// The verifier's agreement once verified (after local optimisation).
+    agreement: Option<f64>,
+}
+
+/// The best distinct hypotheses by coverage cost, for a verifier to choose among (see
+/// [`Verification`]). Two hypotheses are one when most of the smaller inlier set is shared:
+/// the cluster keeps its best.
+struct Pool {
+    capacity: usize,
+    items: Vec<Candidate>,
+}
+
+impl Pool {
+    fn new(capacity: usize) -> Self {
+        Self { capacity, items: Vec::with_capacity(capacity + 1) }
+    }
+
+    /// The (cost, cells) a hypothesis must beat to enter: the worst kept once full.
+    fn bound(&self) -> (f64, usize) {
+        if self.items.len() < self.capacity {
+            return (f64::INFINITY, 0);
+        }
+        self.items.iter().map(|c| (c.cost, c.cells)).fold((f64::NEG_INFINITY, 0), |a, b| if b.0 > a.0 { b } else { a })
+    }
+
+    /// Offers a hypothesis with its inlier positions among `n`.
+    fn offer(&mut self, pose: &MapToCamera, cost: f64, cells: usize, inliers: &[usize], n: usize) {
+        let mut members = vec![0u64; n.div_ceil(64)];
+        for &i in inliers {
+            members[i / 64] |= 1 << (i % 64);
+        }
+        let candidate = Candidate { pose: *pose, cost, cells, inliers: inliers.len(), members, agreement: None };
+        if let Some(same) = self.items.iter_mut().find(|c| same_cluster(c, &candidate)) {
+            if cost < same.cost {
+                *same = candidate;
+            }
+            return;
+        }
+        if self.items.len() == self.capacity {
+            let worst = (0..self.items.len()).max_by(|&a, &b| self.items[a].cost.total_cmp(&self.items[b].cost));
+            match worst {
+                Some(w) if cost < self.items[w].cost => {
+                    self.items.swap_remove(w);
+                }
+                _ => return,
+            }
+        }
+        self.items.push(candidate);
+    }
+}
+
+/// Whether two candidates share more than half of the smaller inlier set.
+fn same_cluster(a: &Candidate, b: &Candidate) -> bool {
+    let shared: u32 = a.members.iter().zip(&b.members).map(|(x, y)| (x & y).count_ones()).sum();
+    2 * shared as usize > a.inliers.min(b.inliers)
+}
+
+/// Verifies the candidates not verified yet, each after local optimisation; returns the best
+/// agreement in the pool.
+fn verify_pool(
+    pool: &mut Pool,
+    verification: &Verification,
+    data: &Data,
+    mut coverage: Option<&mut Coverage>,
+    idx_buf: &mut Vec<usize>,
+    local_optimize: bool,
+) -> f64 {
+    for c in pool.items.iter_mut().filter(|c| c.agreement.is_none()) {
+        verify_candidate(c, verification, data, coverage.as_deref_mut(), idx_buf, local_optimize);
+    }
+    pool.items.iter().filter_map(|c| c.agreement).fold(0.0, f64::max)
+}
+
+/// Verifies the lowest-cost candidate alone (if not verified yet); its agreement.
+fn verify_best(
+    pool: &mut Pool,
+    verification: &Verification,
+    data: &Data,
+    coverage: Option<&mut Coverage>,
+    idx_buf: &mut Vec<usize>,
+    local_optimize: bool,
+) -> f64 {
+    let Some(best) = (0..pool.items.len()).min_by(|&a, &b| pool.items[a].cost.total_cmp(&pool.items[b].cost)) else {
+        return 0.0;
+    };
+    let c = &mut pool.items[best];
+    if c.agreement.is_none() {
+        verify_candidate(c, verification, data, coverage, idx_buf, local_optimize);
+    }
+    c.agreement.unwrap_or(0.0)
+}
+
+/// Local optimisation (optional) then the verifier's agreement, stored in the candidate.
+fn verify_candidate(
+    c: &mut Candidate,
+    verification: &Verification,
+    data: &Data,
+    coverage: Option<&mut Coverage>,
+    idx_buf: &mut Vec<usize>,
+    local_optimize: bool,
+) {
+    if local_optimize {
+        let lo = local_optimization(data, coverage, idx_buf, (c.pose, c.cost, c.inliers, c.cells));
+        (c.pose, c.cost, c.cells) = (lo.0, lo.1, lo.3);
+    }
+    c.agreement = Some(verification.verifier.verify(&c.pose.to_camera_to_map()));
+}
+
+/// The verified candidate with the most agreement + `coverage_weight`·cells / most cells.
+fn choose_verified(pool: &Pool, verification: &Verification) -> Option<MapToCamera> {
+    let most_cells = pool.items.iter().map(|c| c.cells).max()?.max(1) as f64;
+    pool.items
+        .iter()
+        .filter_map(|c| Some((c.agreement? + verification.coverage_weight * c.cells as f64 / most_cells, c)))
+        .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cost.total_cmp(&a.1.cost)))
+        .map(|(_, c)| c.pose)
+}
+
 /// Candidate maps [`depth_agreement`] tries at most (every pair while there are few).
 const DEPTH_MAP_CANDIDATES: usize = 120;
+/// Known pairs a candidate map is counted on, at most.
+const DEPTH_AGREEMENT_SAMPLE: usize = 64;
 
 /// Which (prior, depth) pairs agree with one affine map `depth ≈ a·prior + b`, `a > 0`, within
 /// `tolerance`·depth: the map agreed on by the most pairs, each candidate defined by two pairs
@@ -392,7 +523,11 @@ pub(crate) fn depth_agreement(pairs: &[(f64, f64)], tolerance: f64) -> Vec<bool>
             })
             .collect()
     };
+    // Candidates are counted on at most DEPTH_AGREEMENT_SAMPLE known pairs (evenly strided);
+    // the winner then decides every pair.
+    let stride = k.div_ceil(DEPTH_AGREEMENT_SAMPLE);
     let mut best_count = 0;
+    let mut best_map = None;
     for (i, j) in candidates {
         let ((di, zi), (dj, zj)) = (pairs[i], pairs[j]);
         if (di - dj).abs() < 1e-9 {
@@ -403,12 +538,15 @@ pub(crate) fn depth_agreement(pairs: &[(f64, f64)], tolerance: f64) -> Vec<bool>
             continue;
         }
         let b = zi - a * di;
-        let count = known.iter().filter(|&&k| agrees(a, b, pairs[k])).count();
+        let count = known.iter().step_by(stride).filter(|&&k| agrees(a, b, pairs[k])).count();
         if count > best_count {
             best_count = count;
-            for &k in &known {
-                best[k] = agrees(a, b, pairs[k]);
-            }
+            best_map = Some((a, b));
+        }
+    }
+    if let Some((a, b)) = best_map {
+        for &k in &known {
+            best[k] = agrees(a, b, pairs[k]);
         }
     }
     if best_count == 0 {
@@ -495,6 +633,24 @@ pub fn solve_pnp_ransac_with_prior(
     params: &PnpParams,
     seed: u64,
 ) -> Result<PnpSolution, PnpError> {
+    let guidance = Guidance { scores, prior_depths, verification: None };
+    solve_pnp_ransac_guided(intrinsics, pixels, points, &guidance, params, seed)
+}
+
+/// Robust PnP with everything beyond the correspondences that guides it ([`Guidance`]): scores
+/// (PROSAC), prior depths (see [`solve_pnp_ransac_with_prior`]) and a verifier. With a verifier
+/// and coverage scoring, the `candidates` best distinct hypotheses are kept (SPRT off, so a
+/// hypothesis with less support than the best is still scored in full) and the verifier's
+/// choice among them is refined and returned.
+pub fn solve_pnp_ransac_guided(
+    intrinsics: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+    guidance: &Guidance,
+    params: &PnpParams,
+    seed: u64,
+) -> Result<PnpSolution, PnpError> {
+    let Guidance { scores, prior_depths, verification } = *guidance;
     check_basic(intrinsics, pixels.len(), points.len())?;
     if let Some(d) = prior_depths {
         if d.len() != pixels.len() {
@@ -551,6 +707,8 @@ pub fn solve_pnp_ransac_with_prior(
         .filter(|_| params.prior_tolerance > 0.0)
         .map(|d| (orig.iter().map(|&i| d[i]).collect(), params.prior_tolerance));
     let mut coverage = Coverage::new(&data.px, params.coverage_cell_px, prior);
+    let mut pool =
+        verification.as_ref().filter(|v| v.candidates > 0 && coverage.is_some()).map(|v| Pool::new(v.candidates));
 
     let sprt_keep = 1.0 - 1.0 / SPRT_A;
     let mut best: Option<MapToCamera> = None;
@@ -560,10 +718,46 @@ pub fn solve_pnp_ransac_with_prior(
     let mut needed = f64::INFINITY;
     let mut idx_buf: Vec<usize> = Vec::with_capacity(n);
     let mut flags: Vec<bool> = vec![false; n];
-    let lo_loss = Loss::new(RobustLoss::Trivial, 1.0);
     let mut iterations = 0usize;
 
-    while iterations < params.max_iterations && (iterations < params.min_iterations || (iterations as f64) < needed) {
+    // A verifier can only choose a hypothesis that was drawn: sample at least its minimum, then
+    // verify the pool every as many samples, and go on while no candidate agrees well enough.
+    let (min_iterations, check_every, accept) = match (&pool, &verification) {
+        (Some(_), Some(v)) => (params.min_iterations.max(v.min_iterations), v.min_iterations.max(1), v.accept),
+        _ => (params.min_iterations, usize::MAX, 0.0),
+    };
+    let max_iterations = match (&pool, &verification) {
+        (Some(_), Some(v)) => params.max_iterations.max(v.max_iterations),
+        _ => params.max_iterations,
+    };
+    let mut accepted = false;
+    let mut early_checked = false;
+    let mut early_accepted = false;
+    while iterations < max_iterations {
+        let done = iterations >= min_iterations && (iterations as f64) >= needed;
+        match (pool.as_mut(), &verification) {
+            (Some(p), Some(v)) => {
+                // Where plain RANSAC would stop, the best hypothesis alone is verified first: an
+                // easy frame stops there.
+                if !early_checked && iterations >= params.min_iterations && (iterations as f64) >= needed {
+                    early_checked = true;
+                    if verify_best(p, v, &data, coverage.as_mut(), &mut idx_buf, params.local_optimization) >= accept {
+                        early_accepted = true;
+                        break;
+                    }
+                }
+                if !accepted && iterations >= min_iterations && iterations % check_every == 0 {
+                    let agreement =
+                        verify_pool(p, v, &data, coverage.as_mut(), &mut idx_buf, params.local_optimization);
+                    accepted = agreement >= accept;
+                }
+                if accepted && (done || iterations >= params.max_iterations) {
+                    break;
+                }
+            }
+            _ if done => break,
+            _ => {}
+        }
         iterations += 1;
         let s = match (&mut prosac, &pos_of_rank) {
             (Some(p), Some(map)) => {
@@ -581,42 +775,41 @@ pub fn solve_pnp_ransac_with_prior(
             // (never more than the inliers, so both stay conservative), else inliers.
             let (score, inliers, support) = match coverage.as_mut() {
                 // One pass: cells, SPRT and the cell bound together.
-                Some(cov) => match cov.cost(&data, pose, (best_score, best_support), sprt, start) {
-                    Some((c, i, cells)) if c < best_score => (c, i, cells),
-                    _ => continue,
-                },
+                Some(cov) => {
+                    // With a pool, a hypothesis must beat the pool's worst, and SPRT assumes
+                    // that one's support.
+                    let (bound, sprt) = match &pool {
+                        Some(p) => (p.bound(), Sprt::new(p.bound().1 as f64 / n as f64)),
+                        None => ((best_score, best_support), sprt),
+                    };
+                    match cov.cost(&data, pose, bound, sprt, start) {
+                        Some((c, i, cells)) => {
+                            if let Some(p) = pool.as_mut() {
+                                p.offer(pose, c, cells, &cov.inliers, n);
+                            }
+                            if c < best_score {
+                                (c, i, cells)
+                            } else {
+                                continue;
+                            }
+                        }
+                        None => continue,
+                    }
+                }
                 None => match data.score_bounded(pose, best_score, sprt, start) {
                     Score::Better(score, inliers) => (score, inliers, inliers),
                     Score::Rejected => continue,
                 },
             };
-            let (mut pose, mut score, mut inliers, mut support) = (*pose, score, inliers, support);
+            let (mut pose, mut score, inliers, mut support) = (*pose, score, inliers, support);
             if params.local_optimization && inliers >= 4 {
-                for _ in 0..LO_ROUNDS {
-                    data.collect_inliers(&pose, &mut idx_buf);
-                    if idx_buf.len() < 4 {
-                        break;
-                    }
-                    let (cand, _, _) = lm_refine(&cam, &data.px, &data.pw, &idx_buf, pose, &lo_loss, LO_LM_ITERATIONS);
-                    let (cs, ci, csup) = match coverage.as_mut() {
-                        Some(cov) => match cov.cost(&data, &cand, (score, support), None, 0) {
-                            Some(c) => c,
-                            None => break,
-                        },
-                        None => {
-                            let (cs, ci) = data.score_full(&cand);
-                            (cs, ci, ci)
-                        }
-                    };
-                    if cs < score {
-                        let grew = ci > inliers;
-                        (pose, score, inliers, support) = (cand, cs, ci, csup);
-                        if !grew {
-                            break;
-                        }
-                    } else {
-                        break;
-                    }
+                (pose, score, _, support) =
+                    local_optimization(&data, coverage.as_mut(), &mut idx_buf, (pose, score, inliers, support));
+            }
+            if let (Some(p), Some(cov)) = (pool.as_mut(), coverage.as_mut()) {
+                // The local optimum joins the pool (its cluster keeps the better of the two).
+                if let Some((c, _, cells)) = cov.cost(&data, &pose, (f64::INFINITY, 0), None, 0) {
+                    p.offer(&pose, c, cells, &cov.inliers, n);
                 }
             }
             best = Some(pose);
@@ -638,6 +831,12 @@ pub fn solve_pnp_ransac_with_prior(
         }
     }
 
+    if let (Some(pool), Some(v), false) = (pool.as_mut(), &verification, early_accepted) {
+        verify_pool(pool, v, &data, coverage.as_mut(), &mut idx_buf, params.local_optimization);
+        if let Some(chosen) = choose_verified(pool, v) {
+            best = Some(chosen);
+        }
+    }
     let Some(mut pose) = best else {
         return Err(PnpError::NoConsensus { inliers: 0, required });
     };
@@ -674,6 +873,43 @@ pub fn solve_pnp_ransac_with_prior(
         inliers[orig[i]] = true;
     }
     Ok(PnpSolution { pose: pose.to_camera_to_map(), inliers, num_inliers, iterations, rmse_px, covariance: cov })
+}
+
+/// LO-RANSAC's inner step: rounds of least squares on the inliers while the ranking cost
+/// improves and the inliers grow. Takes and returns (pose, cost, inliers, support).
+fn local_optimization(
+    data: &Data,
+    mut coverage: Option<&mut Coverage>,
+    idx_buf: &mut Vec<usize>,
+    (mut pose, mut score, mut inliers, mut support): (MapToCamera, f64, usize, usize),
+) -> (MapToCamera, f64, usize, usize) {
+    let loss = Loss::new(RobustLoss::Trivial, 1.0);
+    for _ in 0..LO_ROUNDS {
+        data.collect_inliers(&pose, idx_buf);
+        if idx_buf.len() < 4 {
+            break;
+        }
+        let (cand, _, _) = lm_refine(&data.cam, &data.px, &data.pw, idx_buf, pose, &loss, LO_LM_ITERATIONS);
+        let (cs, ci, csup) = match coverage.as_deref_mut() {
+            Some(cov) => match cov.cost(data, &cand, (score, support), None, 0) {
+                Some(c) => c,
+                None => break,
+            },
+            None => {
+                let (cs, ci) = data.score_full(&cand);
+                (cs, ci, ci)
+            }
+        };
+        if !(cs < score) {
+            break;
+        }
+        let grew = ci > inliers;
+        (pose, score, inliers, support) = (cand, cs, ci, csup);
+        if !grew {
+            break;
+        }
+    }
+    (pose, score, inliers, support)
 }
 
 /// PROSAC stopping length: the fewest samples over prefix lengths `n*` whose best-model inliers

@@ -542,3 +542,88 @@ fn prior_depths_reject_a_pose_the_prior_contradicts() {
     let mismatched = solve_pnp_ransac_with_prior(&intr, &px, &pw, None, Some(&prior[..3]), &params, 3);
     assert!(matches!(mismatched, Err(PnpError::LengthMismatch { .. })));
 }
+
+/// A verifier that agrees with poses near `truth` (as the dense prior does with the true pose).
+struct NearPose {
+    truth: Isometry3<f64>,
+    calls: std::cell::Cell<usize>,
+}
+
+impl PoseVerifier for NearPose {
+    fn verify(&self, pose: &Isometry3<f64>) -> f64 {
+        self.calls.set(self.calls.get() + 1);
+        let (rot, trans) = pose_error(pose, &self.truth);
+        (1.0 - 5.0 * rot - trans).max(0.0)
+    }
+}
+
+/// 8 true matches spread over the image, and a wrong pose that explains 24 others over more
+/// cells: coverage alone (and the prior depths, which agree with it) pick the wrong pose; a
+/// verifier that knows better gets the true one from the pool of candidates.
+#[test]
+fn a_verifier_chooses_among_the_candidates() {
+    let mut rng = WyRand::new(5);
+    let pose = random_pose(&mut rng);
+    let intr = k();
+    let (mut px, mut pw) = visible(&mut rng, &pose, 8, 0.3);
+    let wrong = random_pose(&mut rng);
+    let (wrong_px, wrong_pw) = visible(&mut rng, &wrong, 24, 0.3);
+    px.extend(wrong_px);
+    pw.extend(wrong_pw);
+    let (_, more_pw) = visible(&mut rng, &pose, 40, 0.0);
+    for q in more_pw {
+        px.push(Point2::new(uniform(&mut rng, 0.0, 640.0), uniform(&mut rng, 0.0, 480.0)));
+        pw.push(q);
+    }
+    let params = PnpParams::default();
+    let plain = solve_pnp_ransac(&intr, &px, &pw, None, &params, 2).expect("a pose");
+    assert!(pose_error(&plain.pose, &wrong).0 < 0.01, "without a verifier the larger wrong set wins");
+
+    let verifier = NearPose { truth: pose, calls: Default::default() };
+    let verification = Verification {
+        verifier: &verifier,
+        candidates: 8,
+        coverage_weight: 0.25,
+        min_iterations: 500,
+        accept: 0.9,
+        max_iterations: 5000,
+    };
+    let guidance = Guidance { verification: Some(verification), ..Guidance::default() };
+    let verified = solve_pnp_ransac_guided(&intr, &px, &pw, &guidance, &params, 2).expect("a pose");
+    let (rot, trans) = pose_error(&verified.pose, &pose);
+    assert!(rot < 0.01 && trans < 0.05, "{rot} rad, {trans} m off");
+    assert!(verified.inliers[..8].iter().all(|&f| f) && verified.inliers[8..32].iter().all(|&f| !f));
+    assert!(verified.iterations >= 500, "the verifier's minimum is drawn: {}", verified.iterations);
+    let calls = verifier.calls.get();
+    assert!(calls > 1 && calls <= 8 * (5000 / 500 + 1), "{calls} verifications");
+
+    // No coverage scoring: no pool, the verifier is never asked.
+    let unscored = PnpParams { coverage_cell_px: 0.0, ..params };
+    let idle = NearPose { truth: pose, calls: Default::default() };
+    let guidance = Guidance { verification: Some(Verification { verifier: &idle, ..verification }), ..guidance };
+    solve_pnp_ransac_guided(&intr, &px, &pw, &guidance, &unscored, 2).expect("a pose");
+    assert_eq!(idle.calls.get(), 0);
+}
+
+/// An easy frame: the best hypothesis verifies at once, so sampling stops where plain RANSAC
+/// stops and only that candidate is verified.
+#[test]
+fn an_easy_frame_is_verified_once() {
+    let (pose, px, pw, _) = scenario(21, 200, 0.3);
+    let params = PnpParams::default();
+    let plain = solve_pnp_ransac(&k(), &px, &pw, None, &params, 4).expect("a pose");
+    let verifier = NearPose { truth: pose, calls: Default::default() };
+    let verification = Verification {
+        verifier: &verifier,
+        candidates: 8,
+        coverage_weight: 0.25,
+        min_iterations: 1000,
+        accept: 0.9,
+        max_iterations: 10_000,
+    };
+    let guidance = Guidance { verification: Some(verification), ..Guidance::default() };
+    let verified = solve_pnp_ransac_guided(&k(), &px, &pw, &guidance, &params, 4).expect("a pose");
+    assert_eq!(verifier.calls.get(), 1);
+    assert_eq!(verified.iterations, plain.iterations);
+    assert!(pose_error(&verified.pose, &pose).0 < 0.01);
+}

@@ -1,0 +1,388 @@
+//! Pose verification against the dense depth prior: the map, rendered at a candidate pose, must
+//! look like the prior up to one increasing affine map of depth (the prior is known only up to
+//! scale and shift). Correspondences alone cannot tell the true pose from a wrong one that
+//! explains a rigidly displaced patch of matches; the whole image's depth can, since a wrong pose
+//! sees different geometry everywhere. Pure math, no I/O.
+
+use nalgebra::{Isometry3, Point3};
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{DepthImage, DepthKind, Intrinsics};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct VerifyParams {
+    /// Verify the best RANSAC hypotheses against the prior (needs a map and a depth prior).
+    pub enabled: bool,
+    /// Distinct hypotheses kept for verification (see `PnpParams::candidates`).
+    pub candidates: usize,
+    /// Hypotheses RANSAC draws at least when verifying, and between two verifications of its
+    /// candidates while none agrees with the prior in `accept` of the image …
+    pub min_iterations: usize,
+    pub accept: f64,
+    /// … up to this many hypotheses.
+    pub max_iterations: usize,
+    /// Map points rendered, at most (an even subsample of the map).
+    pub max_map_points: usize,
+    /// Side of the render's image cells, pixels.
+    pub cell_px: f64,
+    /// A cell agrees when |z − (a·prior + b)| < tolerance·z.
+    pub tolerance: f64,
+    /// Weight of the image coverage (cells of inliers over the best candidate's) beside the
+    /// prior agreement in choosing among the candidates.
+    pub coverage_weight: f64,
+}
+
+impl Default for VerifyParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            candidates: 12,
+            min_iterations: 1000,
+            accept: 0.7,
+            max_iterations: 10_000,
+            max_map_points: 10_000,
+            cell_px: 32.0,
+            tolerance: 0.1,
+            coverage_weight: 0.25,
+        }
+    }
+}
+
+/// The map points a verifier renders: an even subsample of the map, fixed when the map is set.
+#[derive(Clone, Debug, Default)]
+pub struct RenderMap {
+    /// Coordinates in separate arrays, so the projection vectorises.
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+}
+
+impl RenderMap {
+    /// About `max_points` of the finite `points`, each kept with the same probability by a
+    /// hash of its index (deterministic, and blind to the order the map was stored in).
+    pub fn new(points: &[Point3<f32>], max_points: usize) -> Self {
+        let keep = (max_points as f64 / points.len().max(1) as f64).min(1.0);
+        let threshold = (keep * u32::MAX as f64) as u64;
+        let kept = |i: usize| keep >= 1.0 || (splitmix(i as u64) >> 32) < threshold;
+        let mut map = Self::default();
+        for (_, p) in points.iter().enumerate().filter(|&(i, p)| kept(i) && p.iter().all(|v| v.is_finite())) {
+            map.x.push(p.x);
+            map.y.push(p.y);
+            map.z.push(p.z);
+        }
+        map
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+}
+
+/// SplitMix64's finaliser: a well-mixed hash of an integer.
+fn splitmix(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^ (x >> 31)
+}
+
+/// One frame's verifier: the prior sampled at the centres of the image cells, and the map.
+pub struct PriorVerifier<'a> {
+    map: &'a RenderMap,
+    intrinsics: Intrinsics,
+    cell_px: f64,
+    cols: usize,
+    rows: usize,
+    /// Prior depth per cell (inverse depth already inverted); NaN where unknown.
+    prior: Vec<f32>,
+    tolerance: f32,
+}
+
+impl<'a> PriorVerifier<'a> {
+    /// `None` when there is nothing to verify with (empty map, invalid cell size or a prior that
+    /// is unknown almost everywhere).
+    pub fn new(
+        map: &'a RenderMap,
+        prior: &DepthImage,
+        kind: DepthKind,
+        intrinsics: &Intrinsics,
+        params: &VerifyParams,
+    ) -> Option<Self> {
+        if map.is_empty() || !(params.cell_px.is_finite() && params.cell_px >= 1.0) || !intrinsics.is_valid() {
+            return None;
+        }
+        let cols = (intrinsics.width as f64 / params.cell_px).ceil() as usize;
+        let rows = (intrinsics.height as f64 / params.cell_px).ceil() as usize;
+        let mut known = 0;
+        let mut cells = Vec::with_capacity(rows * cols);
+        for r in 0..rows {
+            for c in 0..cols {
+                let centre = nalgebra::Point2::new(
+                    ((c as f64 + 0.5) * params.cell_px).min(intrinsics.width as f64 - 1.0),
+                    ((r as f64 + 0.5) * params.cell_px).min(intrinsics.height as f64 - 1.0),
+                );
+                let d = prior.sample(&centre, intrinsics.width, intrinsics.height).map(|v| match kind {
+                    DepthKind::Depth => v,
+                    DepthKind::InverseDepth => 1.0 / v,
+                });
+                match d {
+                    Some(d) if d.is_finite() && d > 0.0 => {
+                        known += 1;
+                        cells.push(d as f32);
+                    }
+                    _ => cells.push(f32::NAN),
+                }
+            }
+        }
+        (known * 4 >= cells.len()).then_some(Self {
+            map,
+            intrinsics: *intrinsics,
+            cell_px: params.cell_px,
+            cols,
+            rows,
+            prior: cells,
+            tolerance: params.tolerance as f32,
+        })
+    }
+
+    /// The nearest map depth in each image cell at the camera-to-map `pose` (∞ where the map
+    /// is not seen).
+    pub fn render(&self, pose: &Isometry3<f64>) -> Vec<f32> {
+        let to_cam = pose.inverse();
+        let r = to_cam.rotation.to_rotation_matrix().into_inner().cast::<f32>();
+        let t = to_cam.translation.vector.cast::<f32>();
+        let k = &self.intrinsics;
+        let inv_cell = 1.0 / self.cell_px as f32;
+        let (fx, fy) = (k.fx as f32 * inv_cell, k.fy as f32 * inv_cell);
+        let (cx, cy) = (k.cx as f32 * inv_cell, k.cy as f32 * inv_cell);
+        let (w, h) = (k.width as f32 * inv_cell, k.height as f32 * inv_cell);
+        let mut depth = vec![f32::INFINITY; self.rows * self.cols];
+        let (cols, map) = (self.cols as u32, self.map);
+        let (r0, r1, r2) =
+            ([r[(0, 0)], r[(0, 1)], r[(0, 2)]], [r[(1, 0)], r[(1, 1)], r[(1, 2)]], [r[(2, 0)], r[(2, 1)], r[(2, 2)]]);
+        // In blocks: a branch-free pass that projects (vectorised), then the scatter.
+        const BLOCK: usize = 256;
+        let mut cell = [u32::MAX; BLOCK];
+        let mut zs = [0f32; BLOCK];
+        for start in (0..map.len()).step_by(BLOCK) {
+            let end = (start + BLOCK).min(map.len());
+            let (xs, ys, zm) = (&map.x[start..end], &map.y[start..end], &map.z[start..end]);
+            let points = xs.iter().zip(ys).zip(zm);
+            for ((c, z), ((&px, &py), &pz)) in cell.iter_mut().zip(zs.iter_mut()).zip(points) {
+                let x = r0[0] * px + r0[1] * py + r0[2] * pz + t.x;
+                let y = r1[0] * px + r1[1] * py + r1[2] * pz + t.y;
+                let cz = r2[0] * px + r2[1] * py + r2[2] * pz + t.z;
+                let iz = 1.0 / cz;
+                let (u, v) = (fx * x * iz + cx, fy * y * iz + cy);
+                let visible = cz > 0.05 && u >= 0.0 && v >= 0.0 && u < w && v < h;
+                *c = if visible { v as u32 * cols + u as u32 } else { u32::MAX };
+                *z = cz;
+            }
+            let n = xs.len();
+            for (&c, &z) in cell[..n].iter().zip(&zs[..n]) {
+                if let Some(d) = depth.get_mut(c as usize) {
+                    if z < *d {
+                        *d = z;
+                    }
+                }
+            }
+        }
+        depth
+    }
+
+    /// Share of all image cells in which the map rendered at `pose` agrees with the prior under
+    /// the best increasing affine map depth ≈ a·prior + b (robust fit: the map agreed on by
+    /// the most cells among candidates through two cells each). In [0, 1]; a pose that sees
+    /// little of the map scores low.
+    pub fn agreement(&self, pose: &Isometry3<f64>) -> f64 {
+        let depth = self.render(pose);
+        let pairs: Vec<(f32, f32)> = self
+            .prior
+            .iter()
+            .zip(&depth)
+            .filter(|(d, z)| d.is_finite() && z.is_finite())
+            .map(|(&d, &z)| (d, z))
+            .collect();
+        best_affine_count(&pairs, self.tolerance) as f64 / self.prior.len() as f64
+    }
+}
+
+impl crate::pnp::PoseVerifier for PriorVerifier<'_> {
+    fn verify(&self, pose: &Isometry3<f64>) -> f64 {
+        self.agreement(pose)
+    }
+}
+
+/// Candidate affine maps tried by [`best_affine_count`].
+const AFFINE_CANDIDATES: usize = 64;
+
+/// The most (prior, depth) pairs that one increasing affine map `z ≈ a·d + b` puts within
+/// `tolerance`·z, over candidate maps through two pairs each (spread deterministically).
+fn best_affine_count(pairs: &[(f32, f32)], tolerance: f32) -> usize {
+    let n = pairs.len();
+    if n < 2 {
+        return 0;
+    }
+    let mut best = 0;
+    let mut state = 0x2545_F491_4F6C_DD1Du64;
+    for c in 0..AFFINE_CANDIDATES {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        let i = c * n / AFFINE_CANDIDATES;
+        let j = (i + 1 + (state >> 33) as usize % (n - 1)) % n;
+        let ((di, zi), (dj, zj)) = (pairs[i], pairs[j]);
+        if (di - dj).abs() < 1e-6 * di.abs().max(dj.abs()) {
+            continue;
+        }
+        let a = (zi - zj) / (di - dj);
+        if !(a > 0.0) {
+            continue;
+        }
+        let b = zi - a * di;
+        let count = pairs.iter().filter(|&&(d, z)| (z - (a * d + b)).abs() < tolerance * z).count();
+        best = best.max(count);
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+    fn intrinsics() -> Intrinsics {
+        Intrinsics { fx: 300.0, fy: 300.0, cx: 160.0, cy: 120.0, width: 320, height: 240 }
+    }
+
+    /// A box room, 6 × 4 × 3 m, sampled every 5 cm on its walls, floor and ceiling.
+    fn room() -> Vec<Point3<f32>> {
+        let mut pts = Vec::new();
+        let step = 0.05f32;
+        let (sx, sy, sz) = (6.0f32, 4.0f32, 3.0f32);
+        let grid = |a: f32, b: f32| {
+            (0..(a / step) as i32)
+                .flat_map(move |i| (0..(b / step) as i32).map(move |j| (i as f32 * step, j as f32 * step)))
+        };
+        for (u, v) in grid(sx, sy) {
+            pts.push(Point3::new(u, v, 0.0));
+            pts.push(Point3::new(u, v, sz));
+        }
+        for (u, v) in grid(sx, sz) {
+            pts.push(Point3::new(u, 0.0, v));
+            pts.push(Point3::new(u, sy, v));
+        }
+        for (u, v) in grid(sy, sz) {
+            pts.push(Point3::new(0.0, u, v));
+            pts.push(Point3::new(sx, u, v));
+        }
+        // A table in the room, so that views differ in more than a plane.
+        for (u, v) in grid(1.0, 1.0) {
+            pts.push(Point3::new(2.5 + u, 1.5 + v, 2.2));
+        }
+        pts
+    }
+
+    /// Camera-to-map pose looking from `eye` along +x with a small yaw.
+    fn pose(eye: [f64; 3], yaw: f64) -> Isometry3<f64> {
+        // Optical frame (z forward, x right, y down) looking along map +x, down map +z.
+        let base = UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(
+            nalgebra::Matrix3::new(0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0),
+        ));
+        let turn = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw);
+        Isometry3::from_parts(Translation3::new(eye[0], eye[1], eye[2]), turn * base)
+    }
+
+    /// The prior a monocular network would give at `truth`: the map's depth, scaled and
+    /// shifted, at a quarter of the camera's resolution (dense: every map point, 4 px cells).
+    fn prior_at(truth: &Isometry3<f64>, scale: f32, shift: f32) -> DepthImage {
+        let k = intrinsics();
+        let dense = RenderMap::new(&room(), usize::MAX);
+        let params = VerifyParams { cell_px: 4.0, ..VerifyParams::default() };
+        let flat = DepthImage::new(k.width, k.height, vec![1.0; (k.width * k.height) as usize]);
+        let v = PriorVerifier::new(&dense, &flat, DepthKind::Depth, &k, &params).unwrap();
+        let data =
+            v.render(truth).iter().map(|&z| if z.is_finite() { (z - shift) / scale } else { f32::NAN }).collect();
+        DepthImage::new(v.cols as u32, v.rows as u32, data)
+    }
+
+    #[test]
+    fn render_sees_the_nearest_surface() {
+        let map = RenderMap::new(&room(), 1_000_000);
+        let k = intrinsics();
+        let flat = DepthImage::new(k.width, k.height, vec![1.0; (k.width * k.height) as usize]);
+        let v = PriorVerifier::new(&map, &flat, DepthKind::Depth, &k, &VerifyParams::default()).unwrap();
+        // From x = 1 looking along +x, the far wall (x = 6) is 5 m away at the image centre.
+        let depth = v.render(&pose([1.0, 2.0, 1.5], 0.0));
+        let centre = depth[(v.rows / 2) * v.cols + v.cols / 2];
+        assert!((centre - 5.0).abs() < 0.1, "{centre}");
+        assert!(depth.iter().all(|z| z.is_finite()), "inside a closed room every cell sees a wall");
+    }
+
+    #[test]
+    fn the_true_pose_agrees_and_wrong_poses_do_not_whatever_the_prior_scale() {
+        let map = RenderMap::new(&room(), 40_000);
+        let k = intrinsics();
+        let truth = pose([1.0, 1.2, 1.4], 0.3);
+        for (scale, shift) in [(1.0, 0.0), (0.4, -0.5), (2.5, 0.8)] {
+            let prior = prior_at(&truth, scale, shift);
+            let v = PriorVerifier::new(&map, &prior, DepthKind::Depth, &k, &VerifyParams::default()).unwrap();
+            let good = v.agreement(&truth);
+
+            assert!(good > 0.9, "scale {scale}: true pose agrees in {good}");
+            let slightly_off = v.agreement(&pose([1.02, 1.21, 1.4], 0.31));
+            assert!(slightly_off > 0.7, "a pose near the truth still agrees: {slightly_off}");
+            // Sideways, turned, elsewhere (not straight ahead towards a wall: that changes depth
+            // by a constant, which an affine-ambiguous prior cannot tell).
+            let wrong_poses = [
+                pose([1.0, 2.8, 1.4], 0.3),
+                pose([1.0, 1.2, 1.4], 1.2),
+                pose([1.0, 1.2, 1.4], 0.6),
+                pose([4.5, 1.0, 2.0], -0.8),
+                pose([2.0, 2.0, 2.0], 0.0),
+            ];
+            for wrong in wrong_poses {
+                let bad = v.agreement(&wrong);
+                assert!(bad < good - 0.25, "wrong pose {wrong}: {bad} vs true {good}");
+            }
+        }
+    }
+
+    #[test]
+    fn inverse_depth_priors_are_inverted() {
+        let map = RenderMap::new(&room(), 40_000);
+        let k = intrinsics();
+        let truth = pose([1.5, 2.0, 1.0], -0.2);
+        let depth = prior_at(&truth, 1.0, 0.0);
+        let inverse = DepthImage::new(depth.width, depth.height, depth.data.iter().map(|d| 1.0 / d).collect());
+        let v = PriorVerifier::new(&map, &inverse, DepthKind::InverseDepth, &k, &VerifyParams::default()).unwrap();
+        assert!(v.agreement(&truth) > 0.9);
+    }
+
+    #[test]
+    fn nothing_to_verify_with_is_none() {
+        let k = intrinsics();
+        let unknown = DepthImage::new(k.width, k.height, vec![f32::NAN; (k.width * k.height) as usize]);
+        let map = RenderMap::new(&room(), 1000);
+        assert!(PriorVerifier::new(&map, &unknown, DepthKind::Depth, &k, &VerifyParams::default()).is_none());
+        let known = DepthImage::new(k.width, k.height, vec![1.0; (k.width * k.height) as usize]);
+        let empty = RenderMap::new(&[], 1000);
+        assert!(PriorVerifier::new(&empty, &known, DepthKind::Depth, &k, &VerifyParams::default()).is_none());
+        let nan_map = RenderMap::new(&[Point3::new(f32::NAN, 0.0, 0.0)], 1000);
+        assert!(nan_map.is_empty());
+    }
+
+    #[test]
+    fn render_map_subsamples_evenly() {
+        let pts: Vec<Point3<f32>> = (0..1000).map(|i| Point3::new(i as f32, 0.0, 0.0)).collect();
+        let map = RenderMap::new(&pts, 300);
+        assert!((250..350).contains(&map.len()), "{}", map.len());
+        // Spread over the whole cloud, not a prefix or a stride.
+        let mean = map.x.iter().sum::<f32>() / map.len() as f32;
+        assert!((mean - 500.0).abs() < 60.0, "{mean}");
+        assert_eq!(RenderMap::new(&pts, 5000).len(), 1000);
+    }
+}
