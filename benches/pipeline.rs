@@ -1,8 +1,9 @@
 //! Per-frame cost of each stage at N = 400, 1000, 2000 correspondences (synthetic "hard" tier:
 //! ~15 % inliers, half moved patch-wise): the consistency matrices (angle, distance), the
 //! scale-and-shift alignment, the spectral scorer, and the whole frame with consistency
-//! rejection, the learned rejector (when ONNX Runtime is there: `make ort`) and plain LO-RANSAC,
-//! measured in the same run.
+//! rejection, the learned rejector (when ONNX Runtime is there: `make ort`; also with the
+//! verification against the dense prior off) and plain LO-RANSAC, and one verification of a
+//! pose, measured in the same run.
 //!
 //! `cargo bench --bench pipeline`; `ANGLE_I2P_BENCH_MODELS=a.onnx,b.onnx` also times the network
 //! alone for other model files (same inputs), for the size/latency trade-off.
@@ -17,6 +18,7 @@ use angle_i2p::pipeline::{Localizer, Method};
 use angle_i2p::reject::network::{NetworkParams, NetworkRejector};
 use angle_i2p::reject::{FrameGeometry, Rejector, SpectralParams, SpectralRejector};
 use angle_i2p::synth::{generate, SynthConfig};
+use angle_i2p::verify::{PriorVerifier, RenderMap, VerifyParams};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 
 fn scene(n: usize) -> (Vec<angle_i2p::frame::Frame>, angle_i2p::frame::MapCloud) {
@@ -45,6 +47,18 @@ fn bench(c: &mut Criterion) {
         group.bench_with_input(BenchmarkId::new("align_scale_shift", n), frame, |b, f| {
             b.iter(|| FrameGeometry::build(black_box(f), DepthKind::Depth, Some(&align)))
         });
+        // One verification: the map rendered at a pose and compared with the prior.
+        if let (Some(map), Some(prior), Some(truth)) =
+            (&map, &frame.depth_prior, frame.ground_truth.as_ref().and_then(|g| g.pose))
+        {
+            let params = VerifyParams::default();
+            let render = RenderMap::new(&map.points, params.max_map_points);
+            if let Some(verifier) = PriorVerifier::new(&render, prior, DepthKind::Depth, &frame.intrinsics, &params) {
+                group.bench_with_input(BenchmarkId::new("verify_pose", n), &truth, |b, t| {
+                    b.iter(|| verifier.agreement(black_box(t)))
+                });
+            }
+        }
         let mut scorer = SpectralRejector::default();
         group.bench_with_input(BenchmarkId::new("spectral_scorer", n), &geometry, |b, g| {
             b.iter(|| scorer.reject(black_box(g)).expect("scores"))
@@ -74,8 +88,17 @@ fn bench(c: &mut Criterion) {
                 });
             }
         }
-        for method in [Method::Ransac, Method::Consistency, Method::AngleI2p] {
-            let mut localizer = Localizer::new(Params { method, ..Params::default() });
+        // The whole frame per method; angle-i2p also without verification against the prior
+        // (the baseline of that stage, in the same run).
+        let plain = VerifyParams { enabled: false, ..VerifyParams::default() };
+        let runs = [
+            (Method::Ransac, VerifyParams::default(), ""),
+            (Method::Consistency, VerifyParams::default(), ""),
+            (Method::AngleI2p, VerifyParams::default(), ""),
+            (Method::AngleI2p, plain, "_no_verify"),
+        ];
+        for (method, verify, suffix) in runs {
+            let mut localizer = Localizer::new(Params { method, verify, ..Params::default() });
             if let Some(e) = localizer.setup_error() {
                 eprintln!("skipping {}: {e}", method.name());
                 continue;
@@ -83,9 +106,11 @@ fn bench(c: &mut Criterion) {
             if let Some(map) = &map {
                 localizer.set_map(map);
             }
-            group.bench_with_input(BenchmarkId::new(format!("localize_{}", method.name()), n), frame, |b, f| {
-                b.iter(|| localizer.process(black_box(f)))
-            });
+            group.bench_with_input(
+                BenchmarkId::new(format!("localize_{}{suffix}", method.name()), n),
+                frame,
+                |b, f| b.iter(|| localizer.process(black_box(f))),
+            );
         }
     }
     group.finish();

@@ -2,7 +2,8 @@
 # The paper's ablations (section 4.4) on the shared validation bags, each replayed and scored by
 # `angle-i2p eval`: the method; its trained ablation models (no global attention, distance θ, no
 # scale alignment, no matcher score); keypoints by spectral score only; τ ∈ {0.1, 0.2, 0.4, 0.5};
-# the PnP without the prior check and with plain inlier counting; the training-free rejectors
+# the PnP without the prior check, with plain inlier counting and without verification against
+# the dense prior (`verify`); the training-free rejectors
 # (distance and angle spectral consistency; also with ≥ 1500 PnP iterations, which spends about
 # the network's time per frame) and plain LO-RANSAC.
 #   scripts/ablations.sh [BAG ...]   (default: ../shared/data/redkitchen-{extreme,hard}-val)
@@ -28,9 +29,12 @@ rows=(
   "consistency-distance-equal-time|--method consistency -p pnp.min_iterations:=1500"
   "consistency-angle-equal-time|--method consistency -p spectral.metric:=angle -p pnp.min_iterations:=1500"
   "ransac|--method ransac"
+  "ransac-no-verification|--method ransac -p verify.enabled:=false"
   "ransac-count-scoring|--method ransac -p pnp.coverage_cell_px:=0"
   "angle-i2p-no-prior-check|--method angle-i2p -p pnp.prior_tolerance:=0"
   "angle-i2p-count-scoring|--method angle-i2p -p pnp.coverage_cell_px:=0"
+  "angle-i2p-no-verification|--method angle-i2p -p verify.enabled:=false"
+  "consistency-distance-no-verification|--method consistency -p verify.enabled:=false"
 )
 for bag in "${bags[@]}"; do
   name=$(basename "$bag")

@@ -133,16 +133,16 @@ fn consistency_accuracy_on_real_sift_val() {
     assert!(s.mre.unwrap() <= 0.62 && s.mte.unwrap() <= 0.017, "{s:?}");
 }
 
-/// The learned rejector's bars on real data (issue #3): on `redkitchen-extreme-val` RR at
-/// least 15 points above PoseLib LO-RANSAC's 25 %; on `redkitchen-hard-val` RR ≥ 95 % with at
-/// least twice the raw inlier ratio.
+/// The learned rejector's bars on real data (issue #3): on `redkitchen-extreme-val` RR within 5
+/// points of the oracle's 88.3 % (PoseLib LO-RANSAC: 25 %); on `redkitchen-hard-val` RR ≥ 95 %
+/// with at least twice the raw inlier ratio.
 #[test]
 fn learned_rejection_on_real_extreme_and_hard_val() {
     if onnx_runtime().is_none() {
         return;
     }
     let Some((s, raw_ir)) = real_bag_summary("redkitchen-extreme-val", Method::AngleI2p) else { return };
-    assert!(s.rr >= 40.0, "extreme RR {:.1} %", s.rr);
+    assert!(s.rr >= 88.333 - 5.0, "extreme RR {:.1} %", s.rr);
     assert!(s.ir >= 3.0 * raw_ir, "extreme IR {:.1} % vs raw {raw_ir:.1} %", s.ir);
     let Some((s, raw_ir)) = real_bag_summary("redkitchen-hard-val", Method::AngleI2p) else { return };
     assert!(s.rr >= 95.0, "hard RR {:.1} %", s.rr);
