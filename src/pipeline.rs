@@ -10,7 +10,7 @@ use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::params::Params;
 use crate::pnp::{
-    pose_covariance, refine_pose, solve_pnp_ransac_guided, Guidance, PnpError, RefineOptions, RobustLoss, Verification,
+    pose_covariance, refine_pose, solve_pnp_ransac_guided, Guidance, PnpError, RefineOptions, RobustLoss,
 };
 use crate::reject::network::NetworkRejector;
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
@@ -166,9 +166,10 @@ impl Localizer {
         if let Some(r) = self.rejector.as_mut() {
             r.set_map(map);
         }
-        self.render_map = match self.params.verify.enabled {
-            true => RenderMap::new(&map.points, self.params.verify.max_map_points),
-            false => RenderMap::default(),
+        self.render_map = if self.params.verify.enabled {
+            RenderMap::new(&map.points, self.params.verify.max_map_points)
+        } else {
+            RenderMap::default()
         };
     }
 
@@ -250,14 +251,7 @@ impl Localizer {
         let guidance = Guidance {
             scores: scores.as_deref(),
             prior_depths: priors.as_deref(),
-            verification: verifier.as_ref().map(|v| Verification {
-                verifier: v,
-                candidates: verify.candidates,
-                coverage_weight: verify.coverage_weight,
-                min_iterations: verify.min_iterations,
-                accept: verify.accept,
-                max_iterations: verify.max_iterations,
-            }),
+            verification: verifier.as_ref().map(|v| verify.verification(v)),
         };
         let solved =
             solve_pnp_ransac_guided(&frame.intrinsics, &pixels, &points, &guidance, &self.params.pnp, self.params.seed);

@@ -8,6 +8,7 @@ use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{DepthImage, DepthKind, Intrinsics};
+use crate::pnp::{PoseVerifier, Verification};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -45,6 +46,20 @@ impl Default for VerifyParams {
             cell_px: 32.0,
             tolerance: 0.1,
             coverage_weight: 0.25,
+        }
+    }
+}
+
+impl VerifyParams {
+    /// How PnP uses `verifier` under these parameters.
+    pub fn verification<'a>(&self, verifier: &'a dyn PoseVerifier) -> Verification<'a> {
+        Verification {
+            verifier,
+            candidates: self.candidates,
+            coverage_weight: self.coverage_weight,
+            min_iterations: self.min_iterations,
+            accept: self.accept,
+            max_iterations: self.max_iterations,
         }
     }
 }
@@ -212,7 +227,7 @@ impl<'a> PriorVerifier<'a> {
     }
 }
 
-impl crate::pnp::PoseVerifier for PriorVerifier<'_> {
+impl PoseVerifier for PriorVerifier<'_> {
     fn verify(&self, pose: &Isometry3<f64>) -> f64 {
         self.agreement(pose)
     }

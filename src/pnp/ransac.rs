@@ -375,25 +375,42 @@ struct Candidate {
     agreement: Option<f64>,
 }
 
-/// The best distinct hypotheses by coverage cost, for a verifier to choose among (see
+/// The best distinct hypotheses by coverage cost, and the verifier that chooses among them (see
 /// [`Verification`]). Two hypotheses are one when most of the smaller inlier set is shared:
 /// the cluster keeps its best.
-struct Pool {
-    capacity: usize,
+struct Pool<'a> {
+    verification: Verification<'a>,
+    /// Each candidate is locally optimised before it is verified.
+    local_optimize: bool,
     items: Vec<Candidate>,
 }
 
-impl Pool {
-    fn new(capacity: usize) -> Self {
-        Self { capacity, items: Vec::with_capacity(capacity + 1) }
+impl<'a> Pool<'a> {
+    fn new(verification: Verification<'a>, local_optimize: bool) -> Self {
+        Self { verification, local_optimize, items: Vec::with_capacity(verification.candidates + 1) }
+    }
+
+    fn is_full(&self) -> bool {
+        self.items.len() >= self.verification.candidates
+    }
+
+    /// Index of the candidate with the highest (`worst`) or lowest cost.
+    fn extreme(&self, worst: bool) -> Option<usize> {
+        let by_cost = |&a: &usize, &b: &usize| self.items[a].cost.total_cmp(&self.items[b].cost);
+        let indices = 0..self.items.len();
+        if worst {
+            indices.max_by(by_cost)
+        } else {
+            indices.min_by(by_cost)
+        }
     }
 
     /// The (cost, cells) a hypothesis must beat to enter: the worst kept once full.
     fn bound(&self) -> (f64, usize) {
-        if self.items.len() < self.capacity {
-            return (f64::INFINITY, 0);
+        match self.extreme(true) {
+            Some(w) if self.is_full() => (self.items[w].cost, self.items[w].cells),
+            _ => (f64::INFINITY, 0),
         }
-        self.items.iter().map(|c| (c.cost, c.cells)).fold((f64::NEG_INFINITY, 0), |a, b| if b.0 > a.0 { b } else { a })
     }
 
     /// Offers a hypothesis with its inlier positions among `n`.
@@ -409,9 +426,8 @@ impl Pool {
             }
             return;
         }
-        if self.items.len() == self.capacity {
-            let worst = (0..self.items.len()).max_by(|&a, &b| self.items[a].cost.total_cmp(&self.items[b].cost));
-            match worst {
+        if self.is_full() {
+            match self.extreme(true) {
                 Some(w) if cost < self.items[w].cost => {
                     self.items.swap_remove(w);
                 }
@@ -420,73 +436,48 @@ impl Pool {
         }
         self.items.push(candidate);
     }
+
+    /// The agreement of candidate `i`, verified once: after local optimisation (optional).
+    fn verify(&mut self, i: usize, data: &Data, coverage: Option<&mut Coverage>, idx_buf: &mut Vec<usize>) -> f64 {
+        let c = &mut self.items[i];
+        if let Some(agreement) = c.agreement {
+            return agreement;
+        }
+        if self.local_optimize {
+            let lo = local_optimization(data, coverage, idx_buf, (c.pose, c.cost, c.inliers, c.cells));
+            (c.pose, c.cost, c.cells) = (lo.0, lo.1, lo.3);
+        }
+        let agreement = self.verification.verifier.verify(&c.pose.to_camera_to_map());
+        c.agreement = Some(agreement);
+        agreement
+    }
+
+    /// Verifies every candidate; the best agreement.
+    fn verify_all(&mut self, data: &Data, mut coverage: Option<&mut Coverage>, idx_buf: &mut Vec<usize>) -> f64 {
+        (0..self.items.len()).map(|i| self.verify(i, data, coverage.as_deref_mut(), idx_buf)).fold(0.0, f64::max)
+    }
+
+    /// Verifies the lowest-cost candidate alone; its agreement.
+    fn verify_best(&mut self, data: &Data, coverage: Option<&mut Coverage>, idx_buf: &mut Vec<usize>) -> f64 {
+        self.extreme(false).map_or(0.0, |i| self.verify(i, data, coverage, idx_buf))
+    }
+
+    /// The verified candidate with the most agreement + `coverage_weight`·cells / most cells.
+    fn choose(&self) -> Option<MapToCamera> {
+        let most_cells = self.items.iter().map(|c| c.cells).max()?.max(1) as f64;
+        let weight = self.verification.coverage_weight;
+        self.items
+            .iter()
+            .filter_map(|c| Some((c.agreement? + weight * c.cells as f64 / most_cells, c)))
+            .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cost.total_cmp(&a.1.cost)))
+            .map(|(_, c)| c.pose)
+    }
 }
 
 /// Whether two candidates share more than half of the smaller inlier set.
 fn same_cluster(a: &Candidate, b: &Candidate) -> bool {
     let shared: u32 = a.members.iter().zip(&b.members).map(|(x, y)| (x & y).count_ones()).sum();
     2 * shared as usize > a.inliers.min(b.inliers)
-}
-
-/// Verifies the candidates not verified yet, each after local optimisation; returns the best
-/// agreement in the pool.
-fn verify_pool(
-    pool: &mut Pool,
-    verification: &Verification,
-    data: &Data,
-    mut coverage: Option<&mut Coverage>,
-    idx_buf: &mut Vec<usize>,
-    local_optimize: bool,
-) -> f64 {
-    for c in pool.items.iter_mut().filter(|c| c.agreement.is_none()) {
-        verify_candidate(c, verification, data, coverage.as_deref_mut(), idx_buf, local_optimize);
-    }
-    pool.items.iter().filter_map(|c| c.agreement).fold(0.0, f64::max)
-}
-
-/// Verifies the lowest-cost candidate alone (if not verified yet); its agreement.
-fn verify_best(
-    pool: &mut Pool,
-    verification: &Verification,
-    data: &Data,
-    coverage: Option<&mut Coverage>,
-    idx_buf: &mut Vec<usize>,
-    local_optimize: bool,
-) -> f64 {
-    let Some(best) = (0..pool.items.len()).min_by(|&a, &b| pool.items[a].cost.total_cmp(&pool.items[b].cost)) else {
-        return 0.0;
-    };
-    let c = &mut pool.items[best];
-    if c.agreement.is_none() {
-        verify_candidate(c, verification, data, coverage, idx_buf, local_optimize);
-    }
-    c.agreement.unwrap_or(0.0)
-}
-
-/// Local optimisation (optional) then the verifier's agreement, stored in the candidate.
-fn verify_candidate(
-    c: &mut Candidate,
-    verification: &Verification,
-    data: &Data,
-    coverage: Option<&mut Coverage>,
-    idx_buf: &mut Vec<usize>,
-    local_optimize: bool,
-) {
-    if local_optimize {
-        let lo = local_optimization(data, coverage, idx_buf, (c.pose, c.cost, c.inliers, c.cells));
-        (c.pose, c.cost, c.cells) = (lo.0, lo.1, lo.3);
-    }
-    c.agreement = Some(verification.verifier.verify(&c.pose.to_camera_to_map()));
-}
-
-/// The verified candidate with the most agreement + `coverage_weight`·cells / most cells.
-fn choose_verified(pool: &Pool, verification: &Verification) -> Option<MapToCamera> {
-    let most_cells = pool.items.iter().map(|c| c.cells).max()?.max(1) as f64;
-    pool.items
-        .iter()
-        .filter_map(|c| Some((c.agreement? + verification.coverage_weight * c.cells as f64 / most_cells, c)))
-        .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cost.total_cmp(&a.1.cost)))
-        .map(|(_, c)| c.pose)
 }
 
 /// Candidate maps [`depth_agreement`] tries at most (every pair while there are few).
@@ -639,9 +630,9 @@ pub fn solve_pnp_ransac_with_prior(
 
 /// Robust PnP with everything beyond the correspondences that guides it ([`Guidance`]): scores
 /// (PROSAC), prior depths (see [`solve_pnp_ransac_with_prior`]) and a verifier. With a verifier
-/// and coverage scoring, the `candidates` best distinct hypotheses are kept (SPRT off, so a
-/// hypothesis with less support than the best is still scored in full) and the verifier's
-/// choice among them is refined and returned.
+/// and coverage scoring, the `candidates` best distinct hypotheses are kept (a hypothesis
+/// competes with the pool's worst, not the best, and SPRT assumes that one's support) and the
+/// verifier's choice among them is refined and returned.
 pub fn solve_pnp_ransac_guided(
     intrinsics: &Intrinsics,
     pixels: &[Point2<f64>],
@@ -707,8 +698,9 @@ pub fn solve_pnp_ransac_guided(
         .filter(|_| params.prior_tolerance > 0.0)
         .map(|d| (orig.iter().map(|&i| d[i]).collect(), params.prior_tolerance));
     let mut coverage = Coverage::new(&data.px, params.coverage_cell_px, prior);
-    let mut pool =
-        verification.as_ref().filter(|v| v.candidates > 0 && coverage.is_some()).map(|v| Pool::new(v.candidates));
+    let mut pool = verification
+        .filter(|v| v.candidates > 0 && coverage.is_some())
+        .map(|v| Pool::new(v, params.local_optimization));
 
     let sprt_keep = 1.0 - 1.0 / SPRT_A;
     let mut best: Option<MapToCamera> = None;
@@ -722,41 +714,40 @@ pub fn solve_pnp_ransac_guided(
 
     // A verifier can only choose a hypothesis that was drawn: sample at least its minimum, then
     // verify the pool every as many samples, and go on while no candidate agrees well enough.
-    let (min_iterations, check_every, accept) = match (&pool, &verification) {
-        (Some(_), Some(v)) => (params.min_iterations.max(v.min_iterations), v.min_iterations.max(1), v.accept),
-        _ => (params.min_iterations, usize::MAX, 0.0),
-    };
-    let max_iterations = match (&pool, &verification) {
-        (Some(_), Some(v)) => params.max_iterations.max(v.max_iterations),
-        _ => params.max_iterations,
+    let (min_iterations, max_iterations) = match &pool {
+        Some(p) => (
+            params.min_iterations.max(p.verification.min_iterations),
+            params.max_iterations.max(p.verification.max_iterations),
+        ),
+        None => (params.min_iterations, params.max_iterations),
     };
     let mut accepted = false;
     let mut early_checked = false;
     let mut early_accepted = false;
     while iterations < max_iterations {
-        let done = iterations >= min_iterations && (iterations as f64) >= needed;
-        match (pool.as_mut(), &verification) {
-            (Some(p), Some(v)) => {
-                // Where plain RANSAC would stop, the best hypothesis alone is verified first: an
-                // easy frame stops there.
-                if !early_checked && iterations >= params.min_iterations && (iterations as f64) >= needed {
+        // Where plain RANSAC stops.
+        let plain_done = iterations >= params.min_iterations && (iterations as f64) >= needed;
+        match pool.as_mut() {
+            Some(p) => {
+                let accept = p.verification.accept;
+                // There the best hypothesis alone is verified first: an easy frame stops there.
+                if plain_done && !early_checked {
                     early_checked = true;
-                    if verify_best(p, v, &data, coverage.as_mut(), &mut idx_buf, params.local_optimization) >= accept {
+                    if p.verify_best(&data, coverage.as_mut(), &mut idx_buf) >= accept {
                         early_accepted = true;
                         break;
                     }
                 }
+                let check_every = p.verification.min_iterations.max(1);
                 if !accepted && iterations >= min_iterations && iterations % check_every == 0 {
-                    let agreement =
-                        verify_pool(p, v, &data, coverage.as_mut(), &mut idx_buf, params.local_optimization);
-                    accepted = agreement >= accept;
+                    accepted = p.verify_all(&data, coverage.as_mut(), &mut idx_buf) >= accept;
                 }
-                if accepted && (done || iterations >= params.max_iterations) {
+                if accepted && (plain_done || iterations >= params.max_iterations) {
                     break;
                 }
             }
-            _ if done => break,
-            _ => {}
+            None if plain_done => break,
+            None => {}
         }
         iterations += 1;
         let s = match (&mut prosac, &pos_of_rank) {
@@ -831,9 +822,9 @@ pub fn solve_pnp_ransac_guided(
         }
     }
 
-    if let (Some(pool), Some(v), false) = (pool.as_mut(), &verification, early_accepted) {
-        verify_pool(pool, v, &data, coverage.as_mut(), &mut idx_buf, params.local_optimization);
-        if let Some(chosen) = choose_verified(pool, v) {
+    if let (Some(pool), false) = (pool.as_mut(), early_accepted) {
+        pool.verify_all(&data, coverage.as_mut(), &mut idx_buf);
+        if let Some(chosen) = pool.choose() {
             best = Some(chosen);
         }
     }

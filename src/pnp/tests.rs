@@ -41,6 +41,13 @@ fn visible(rng: &mut WyRand, pose: &Isometry3<f64>, n: usize, noise_px: f64) -> 
     (px, pw)
 }
 
+/// `n` map points visible from `pose`, each matched to a random pixel (uncorrelated outliers).
+fn random_pixel_matches(rng: &mut WyRand, pose: &Isometry3<f64>, n: usize) -> (Vec<Point2<f64>>, Vec<Point3<f64>>) {
+    let (_, points) = visible(rng, pose, n, 0.0);
+    let pixels = points.iter().map(|_| Point2::new(uniform(rng, 0.0, 640.0), uniform(rng, 0.0, 480.0))).collect();
+    (pixels, points)
+}
+
 /// Replaces a fraction of the correspondences by random pixel ↔ map point pairs; returns the
 /// ground-truth inlier flags.
 fn corrupt(rng: &mut WyRand, px: &mut [Point2<f64>], pw: &[Point3<f64>], outlier_ratio: f64) -> Vec<bool> {
@@ -480,11 +487,9 @@ fn coverage_scoring_prefers_spread_support_over_a_displaced_patch() {
         px.push(p);
         pw.push(moved * (pose * xc));
     }
-    let (_, random_points) = visible(&mut rng, &pose, 60, 0.0);
-    for q in random_points {
-        px.push(Point2::new(uniform(&mut rng, 0.0, 640.0), uniform(&mut rng, 0.0, 480.0)));
-        pw.push(q);
-    }
+    let (random_px, random_pw) = random_pixel_matches(&mut rng, &pose, 60);
+    px.extend(random_px);
+    pw.extend(random_pw);
     let params = PnpParams { max_iterations: 20_000, ..PnpParams::default() };
     let by_count = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 0.0, ..params.clone() }, 1)
         .expect("a pose");
@@ -570,11 +575,9 @@ fn a_verifier_chooses_among_the_candidates() {
     let (wrong_px, wrong_pw) = visible(&mut rng, &wrong, 24, 0.3);
     px.extend(wrong_px);
     pw.extend(wrong_pw);
-    let (_, more_pw) = visible(&mut rng, &pose, 40, 0.0);
-    for q in more_pw {
-        px.push(Point2::new(uniform(&mut rng, 0.0, 640.0), uniform(&mut rng, 0.0, 480.0)));
-        pw.push(q);
-    }
+    let (random_px, random_pw) = random_pixel_matches(&mut rng, &pose, 40);
+    px.extend(random_px);
+    pw.extend(random_pw);
     let params = PnpParams::default();
     let plain = solve_pnp_ransac(&intr, &px, &pw, None, &params, 2).expect("a pose");
     assert!(pose_error(&plain.pose, &wrong).0 < 0.01, "without a verifier the larger wrong set wins");
