@@ -33,8 +33,27 @@ pub const FIRST_STAMP: Stamp = 1_700_000_000_000_000_000;
 pub const CAMERA_FRAME_ID: &str = "camera_color_optical_frame";
 /// Frame id of the map.
 pub const MAP_FRAME_ID: &str = "map";
-/// Names accepted by [`SynthConfig::preset`].
-pub const PRESETS: [&str; 3] = ["sift", "hard", "extreme"];
+/// Tiers accepted by [`SynthConfig::preset`] (the match quality).
+pub const PRESETS: [&str; 4] = ["sift", "hard", "extreme", "easy"];
+/// Modifiers a tier may be joined with by `+` in [`SynthConfig::preset`]: the sensor and scene
+/// (`close`, `hd`, `wide`), the map (`small-map`, `large-map`) and the prior (`harsh`, `disparity`).
+pub const PRESET_MODIFIERS: [&str; 7] = ["close", "hd", "wide", "small-map", "large-map", "harsh", "disparity"];
+
+/// What kind of monocular prior the generator simulates.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SynthPriorKind {
+    /// Metric-like depth: ground truth warped at low frequency and blurred, then an unknown
+    /// scale and shift (`depth ≈ scale·prior + shift`).
+    #[default]
+    Depth,
+    /// Metric-like depth with the errors real networks make: object-sized regions off by up to
+    /// ±15 %, a monotonic compression of far depths, edges smeared (use a strong warp with it).
+    Harsh,
+    /// Affine-invariant disparity: `prior = scale/depth + shift`, the shift 20–60 % of the median
+    /// value (read it with `depth_kind: disparity`).
+    Disparity,
+}
 
 /// Everything that shapes a synthetic scene. Every field has a default (the "sift" tier).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -107,6 +126,8 @@ pub struct SynthConfig {
     pub path_radius_m: f64,
     /// JPEG quality (1–100).
     pub jpeg_quality: u8,
+    /// The kind of prior and its error classes.
+    pub prior_kind: SynthPriorKind,
 }
 
 impl Default for SynthConfig {
@@ -147,17 +168,80 @@ impl Default for SynthConfig {
             camera_height_m: 1.3,
             path_radius_m: 0.35,
             jpeg_quality: 90,
+            prior_kind: SynthPriorKind::Depth,
         }
     }
 }
 
 impl SynthConfig {
-    /// The named tiers, mirroring the real bags: "sift" (≈ 800 matches, ~50 % inliers, no
+    /// A tier, optionally joined with modifiers by `+` (e.g. `hard+close+disparity`); `None` for
+    /// an unknown name. Tiers mirror the real bags: "sift" (≈ 800 matches, ~50 % inliers, no
     /// patch outliers), "hard" (400, ~15 %, half moved patch-wise), "extreme" (300, ~6 %,
-    /// three quarters moved patch-wise). `None` for an unknown name.
+    /// three quarters moved patch-wise), and "easy" (400, ~83 %, as a good matcher on an RGB-D
+    /// sensor gives). Modifiers ([`PRESET_MODIFIERS`]):
+    /// * `close`: an RGB-D sensor at close range (640×480, f = 615 px, surfaces 0.3–1.5 m away
+    ///   in a 3 × 3 m room, depth-sensor noise on the map);
+    /// * `hd`: 1280×720, f = 900 px, an 8 × 6 m room; `wide`: 640×480, f = 400 px (~77° FOV);
+    /// * `small-map`: a sparse map (voxels of 8 cm: a few thousand points); `large-map`: a dense
+    ///   one (voxels of 1 cm);
+    /// * `harsh`: a metric-like prior with object-sized errors, far-depth compression, smeared
+    ///   edges and a ±20 % warp at an odd resolution; `disparity`: affine-invariant disparity.
     pub fn preset(name: &str) -> Option<SynthConfig> {
+        let name = name.trim().to_ascii_lowercase();
+        let mut parts = name.split('+').map(str::trim);
+        let mut config = Self::tier(parts.next()?)?;
+        for modifier in parts {
+            config = config.with_modifier(modifier)?;
+        }
+        Some(config)
+    }
+
+    /// `self` changed by one of [`PRESET_MODIFIERS`]; `None` for an unknown one. Pixel sizes
+    /// (patch radius) follow the image width.
+    fn with_modifier(self, modifier: &str) -> Option<SynthConfig> {
+        let resize = |c: SynthConfig, width: u32, height: u32, f: f64| {
+            let ratio = width as f64 / c.width as f64;
+            SynthConfig {
+                width,
+                height,
+                fx: f,
+                fy: f,
+                cx: width as f64 / 2.0,
+                cy: height as f64 / 2.0,
+                patch_radius_px: c.patch_radius_px * ratio,
+                ..c
+            }
+        };
+        Some(match modifier {
+            "close" => SynthConfig {
+                room_size: [3.0, 3.0, 2.5],
+                path_radius_m: 0.85,
+                camera_height_m: 1.1,
+                cloud_noise_m: 0.006,
+                map_density: 300.0,
+                map_voxel_m: 0.03,
+                ..resize(self, 640, 480, 615.0)
+            },
+            "hd" => SynthConfig { room_size: [8.0, 6.0, 3.0], path_radius_m: 1.5, ..resize(self, 1280, 720, 900.0) },
+            "wide" => SynthConfig { room_size: [6.0, 5.0, 2.8], ..resize(self, 640, 480, 400.0) },
+            "small-map" => SynthConfig { map_voxel_m: 0.08, map_density: 150.0, ..self },
+            "large-map" => SynthConfig { map_voxel_m: 0.01, map_density: 4000.0, ..self },
+            "harsh" => SynthConfig {
+                prior_kind: SynthPriorKind::Harsh,
+                warp_amplitude: 0.2,
+                blur_sigma_px: 3.0,
+                prior_resolution: 0.7,
+                ..self
+            },
+            "disparity" => SynthConfig { prior_kind: SynthPriorKind::Disparity, ..self },
+            _ => return None,
+        })
+    }
+
+    /// The match-quality tier alone.
+    fn tier(name: &str) -> Option<SynthConfig> {
         let base = SynthConfig::default();
-        match name.trim().to_ascii_lowercase().as_str() {
+        match name {
             "sift" => Some(base),
             "hard" => {
                 Some(SynthConfig { correspondences: 400, inlier_ratio: 0.15, patch_outlier_fraction: 0.5, ..base })
@@ -165,6 +249,7 @@ impl SynthConfig {
             "extreme" => {
                 Some(SynthConfig { correspondences: 300, inlier_ratio: 0.06, patch_outlier_fraction: 0.75, ..base })
             }
+            "easy" => Some(SynthConfig { correspondences: 400, inlier_ratio: 0.83, ..base }),
             _ => None,
         }
     }
@@ -231,8 +316,9 @@ impl SynthConfig {
             blur_sigma_px: nonneg(self.blur_sigma_px, d.blur_sigma_px).min(50.0),
             room_size: room,
             camera_height_m: fin(self.camera_height_m, 1.3).clamp(0.9, room[2] - 0.9),
-            path_radius_m: nonneg(self.path_radius_m, d.path_radius_m).min(room[0].min(room[1]) / 2.0 - 1.0),
+            path_radius_m: nonneg(self.path_radius_m, d.path_radius_m).min(room[0].min(room[1]) / 2.0 - 0.5),
             jpeg_quality: self.jpeg_quality.clamp(1, 100),
+            prior_kind: self.prior_kind,
         }
     }
 }
@@ -248,7 +334,8 @@ pub struct FrameStats {
     /// Correspondences moved patch-wise, and the number of patches.
     pub patch_moved: usize,
     pub patches: usize,
-    /// The prior's affine map: ground-truth depth ≈ `prior_scale` · prior + `prior_shift`.
+    /// The prior's affine map: ground-truth depth ≈ `prior_scale` · prior + `prior_shift`
+    /// (for a disparity prior: prior = `prior_scale` / depth + `prior_shift`).
     pub prior_scale: f64,
     pub prior_shift: f64,
     pub min_depth: f64,
@@ -502,6 +589,7 @@ impl FrameContext<'_> {
             blur_sigma: c.blur_sigma_px,
             scale_range: c.prior_scale_range,
             shift_fraction: c.prior_shift_fraction,
+            kind: c.prior_kind,
         };
         let prior = depth_prior(&render.depth, &params, &mut rng);
         let image = encode_jpeg(&render.rgb, c.width, c.height, c.jpeg_quality);

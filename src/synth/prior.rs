@@ -19,6 +19,7 @@ pub struct PriorParams {
     pub scale_range: [f64; 2],
     /// t ~ U(−f, f) · median depth.
     pub shift_fraction: f64,
+    pub kind: super::SynthPriorKind,
 }
 
 /// The prior and the affine map back to metric depth: `depth ≈ scale · prior + shift`.
@@ -222,7 +223,14 @@ pub fn depth_prior(depth: &DepthImage, params: &PriorParams, rng: &mut StdRng) -
         h: dh,
         data: small.data.iter().zip(&field.data).map(|(d, f)| d * (1.0 + amp * f / max_abs)).collect(),
     };
+    let warped = match params.kind {
+        super::SynthPriorKind::Harsh => harsh_errors(warped, rng),
+        _ => warped,
+    };
     let blurred = gaussian_blur(&warped, params.blur_sigma);
+    if params.kind == super::SynthPriorKind::Disparity {
+        return disparity(&blurred, params, rng);
+    }
     let [lo, hi] = params.scale_range;
     let (lo, hi) = (lo.max(1e-6), hi.max(lo.max(1e-6)));
     let scale = (lo.ln() + rng.random::<f64>() * (hi.ln() - lo.ln())).exp();
@@ -236,6 +244,47 @@ pub fn depth_prior(depth: &DepthImage, params: &PriorParams, rng: &mut StdRng) -
     }
     let data = blurred.data.iter().map(|b| (((b - shift) / scale) * 1000.0).round() as f32 / 1000.0).collect();
     Prior { image: DepthImage::new(dw as u32, dh as u32, data), scale, shift }
+}
+
+/// The errors of real metric-like networks on top of the warp: 4–8 object-sized regions
+/// (ellipses of 8–25 % of the width) off by up to ±15 %, and a monotonic compression of far
+/// depths, `m·(d/m)^γ` with γ ∈ [0.75, 0.9] about the median m. Edges are smeared by the blur
+/// that follows.
+fn harsh_errors(mut g: Grid, rng: &mut StdRng) -> Grid {
+    let (w, h) = (g.w as f64, g.h as f64);
+    for _ in 0..4 + rng.random_range(0..5) {
+        let (cx, cy) = (rng.random::<f64>() * w, rng.random::<f64>() * h);
+        let (rx, ry) = (w * (0.08 + 0.17 * rng.random::<f64>()), w * (0.08 + 0.17 * rng.random::<f64>()));
+        let factor = 1.0 + 0.15 * (2.0 * rng.random::<f64>() - 1.0);
+        for (i, d) in g.data.iter_mut().enumerate() {
+            let (x, y) = ((i % g.w) as f64, (i / g.w) as f64);
+            if ((x - cx) / rx).powi(2) + ((y - cy) / ry).powi(2) < 1.0 {
+                *d *= factor;
+            }
+        }
+    }
+    let mut positive: Vec<f64> = g.data.iter().copied().filter(|d| *d > 0.0).collect();
+    let m = median(&mut positive).unwrap_or(1.0);
+    let gamma = 0.75 + 0.15 * rng.random::<f64>();
+    g.data.iter_mut().filter(|d| **d > 0.0).for_each(|d| *d = m * (*d / m).powf(gamma));
+    g
+}
+
+/// Affine-invariant disparity of a (warped, blurred) depth: `scale/depth + shift`, the scale
+/// log-uniform in the range, the shift 20–60 % of the median `scale/depth`.
+fn disparity(depth: &Grid, params: &PriorParams, rng: &mut StdRng) -> Prior {
+    let [lo, hi] = params.scale_range;
+    let (lo, hi) = (lo.max(1e-6), hi.max(lo.max(1e-6)));
+    let scale = (lo.ln() + rng.random::<f64>() * (hi.ln() - lo.ln())).exp();
+    let mut inverse: Vec<f64> = depth.data.iter().filter(|d| **d > 0.0).map(|d| scale / d).collect();
+    let med = median(&mut inverse).unwrap_or(1.0);
+    let shift = (0.2 + 0.4 * rng.random::<f64>()) * med;
+    let data = depth
+        .data
+        .iter()
+        .map(|&d| if d > 0.0 { (((scale / d + shift) * 1e4).round() / 1e4) as f32 } else { 0.0 })
+        .collect();
+    Prior { image: DepthImage::new(depth.w as u32, depth.h as u32, data), scale, shift }
 }
 
 #[cfg(test)]

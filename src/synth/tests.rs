@@ -364,3 +364,35 @@ fn timing() {
         );
     }
 }
+
+#[test]
+fn modifiers_make_other_sensors_scenes_and_priors() {
+    assert!(SynthConfig::preset("hard+nope").is_none());
+    let close = SynthConfig::preset("easy+close+small-map+disparity").expect("preset");
+    assert_eq!((close.width, close.height, close.fx), (640, 480, 615.0));
+    assert_eq!(close.prior_kind, SynthPriorKind::Disparity);
+    assert!((close.inlier_ratio - 0.83).abs() < 1e-12);
+    let hd = SynthConfig::preset("extreme+hd+harsh").expect("preset");
+    assert_eq!((hd.width, hd.height, hd.fx), (1280, 720, 900.0));
+    assert!((hd.patch_radius_px - 80.0).abs() < 1e-9, "patches scale with the image");
+
+    let scene = generate(&SynthConfig { frames: 2, seed: 3, ..close });
+    let points = scene.map.points.len();
+    assert!((1_000..15_000).contains(&points), "a small map: {points} points");
+    for (f, s) in scene.frames.iter().zip(&scene.stats) {
+        assert!(s.median_depth > 0.3 && s.median_depth < 1.6, "close range: median depth {}", s.median_depth);
+        // Disparity: larger where the ground truth is nearer.
+        let (_, depth) = gt(f);
+        let prior = f.depth_prior.as_ref().expect("prior");
+        let k = f.intrinsics;
+        let (near, far) = depth.data.iter().enumerate().filter(|(_, d)| **d > 0.0).fold(
+            ((f32::INFINITY, 0usize), (0f32, 0usize)),
+            |(n, fa), (i, &d)| (if d < n.0 { (d, i) } else { n }, if d > fa.0 { (d, i) } else { fa }),
+        );
+        let at = |i: usize| {
+            let p = Point2::new((i % k.width as usize) as f64, (i / k.width as usize) as f64);
+            prior.sample(&p, k.width, k.height).expect("known")
+        };
+        assert!(at(near.1) > at(far.1), "disparity falls with depth");
+    }
+}
