@@ -104,8 +104,11 @@ pub fn localization_diagnostics(loc: &Localization) -> DiagnosticArray {
         ("geometry_ms", format!("{:.4}", t_.geometry_ms)),
         ("reject_ms", format!("{:.4}", t_.reject_ms)),
         ("pnp_ms", format!("{:.4}", t_.pnp_ms)),
+        ("fast_path_ms", format!("{:.4}", t_.fast_path_ms)),
         ("kept", loc.kept.len().to_string()),
         ("pnp_inliers", loc.num_inliers.to_string()),
+        ("fast_path", loc.fast_path.to_string()),
+        ("prior_quality", loc.prior_quality.map_or_else(|| "unknown".to_string(), |q| format!("{q:.3}"))),
     ];
     let failure = loc.failure.as_ref().map(|f| f.to_string());
     diagnostics_msg(loc.stamp, loc.method.name(), &values, failure.as_deref())

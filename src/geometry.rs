@@ -47,15 +47,68 @@ impl Intrinsics {
     }
 }
 
-/// What the values of a depth prior mean.
+/// What the values of a depth prior mean. Every kind is known only up to an unknown affine map
+/// in its own space ([`PriorSpace`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DepthKind {
-    /// Values grow with distance (affine-ambiguous depth).
+    /// Values grow with distance: depth ≈ a·value + b (metric-like networks: Depth Anything
+    /// metric, ZoeDepth, Metric3D, a depth sensor).
     #[default]
     Depth,
-    /// Values are inverse depth / disparity (as many monocular networks output).
+    /// 1/value is depth up to scale and shift: depth ≈ a/value + b (a network that outputs
+    /// metric inverse depth, known up to scale).
     InverseDepth,
+    /// Affine-invariant disparity: 1/depth ≈ a·value + b, the shift b unknown and possibly large
+    /// (MiDaS, DPT, Depth Anything relative). Aligned and verified in inverse-depth space.
+    #[serde(alias = "affine_disparity")]
+    Disparity,
+}
+
+/// The space in which a prior is affine: depth itself, or inverse depth (disparity).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PriorSpace {
+    #[default]
+    Depth,
+    Disparity,
+}
+
+impl DepthKind {
+    /// The prior coordinate x that is affine in this kind's [`PriorSpace`]: the value itself,
+    /// or its inverse for [`DepthKind::InverseDepth`].
+    pub fn coordinate(self, value: f64) -> f64 {
+        match self {
+            DepthKind::Depth | DepthKind::Disparity => value,
+            DepthKind::InverseDepth => 1.0 / value,
+        }
+    }
+
+    pub fn space(self) -> PriorSpace {
+        match self {
+            DepthKind::Depth | DepthKind::InverseDepth => PriorSpace::Depth,
+            DepthKind::Disparity => PriorSpace::Disparity,
+        }
+    }
+
+    /// A depth that grows with the true one, before any alignment (identity scale, no shift).
+    pub fn unaligned_depth(self, value: f64) -> f64 {
+        let x = self.coordinate(value);
+        match self.space() {
+            PriorSpace::Depth => x,
+            PriorSpace::Disparity => 1.0 / x,
+        }
+    }
+}
+
+impl PriorSpace {
+    /// What a depth `z` is in this space (the quantity the prior coordinate is affine in).
+    pub fn of_depth(self, z: f64) -> f64 {
+        match self {
+            PriorSpace::Depth => z,
+            PriorSpace::Disparity => 1.0 / z,
+        }
+    }
 }
 
 /// A single-channel depth image, row-major; non-finite or non-positive values are unknown.
@@ -120,10 +173,7 @@ pub fn back_project_with_prior(
         .into_iter()
         .map(|p| {
             let value = prior.sample(&p, intrinsics.width, intrinsics.height)?;
-            let depth = match kind {
-                DepthKind::Depth => value,
-                DepthKind::InverseDepth => 1.0 / value,
-            };
+            let depth = kind.unaligned_depth(value);
             (depth.is_finite() && depth > 0.0).then(|| intrinsics.back_project(&p, depth))
         })
         .collect()
@@ -220,7 +270,7 @@ pub fn point_cloud_normals(index: &PointIndex, cloud: &[Point3<f32>], k: usize) 
 
 /// Normals of the image cloud straight from the dense depth prior: the cross product of the
 /// back-projected horizontal and vertical neighbours of each pixel, oriented towards the camera.
-/// `depth_of` maps a prior value to depth (after any scale/shift alignment).
+/// `depth_of` maps a prior coordinate ([`DepthKind::coordinate`]) to depth (after any alignment).
 pub fn prior_normals(
     intrinsics: &Intrinsics,
     prior: &DepthImage,
@@ -233,10 +283,7 @@ pub fn prior_normals(
     let step_v = intrinsics.height as f64 / prior.height as f64;
     let lift = |p: Point2<f64>| -> Option<Point3<f64>> {
         let value = prior.sample(&p, intrinsics.width, intrinsics.height)?;
-        let z = match kind {
-            DepthKind::Depth => depth_of(value),
-            DepthKind::InverseDepth => depth_of(1.0 / value),
-        };
+        let z = depth_of(kind.coordinate(value));
         (z.is_finite() && z > 0.0).then(|| intrinsics.back_project(&p, z))
     };
     pixels

@@ -5,6 +5,7 @@
 //! The core (`geometry`, `consistency`, `reject`, `pnp`, `verify`, `pipeline`, `eval`) is pure and
 //! free of I/O; `msgs` and `bag` are the edges.
 
+pub mod align;
 pub mod app;
 pub mod bag;
 pub mod consistency;

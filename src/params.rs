@@ -9,7 +9,7 @@ use crate::bag::TopicMap;
 use crate::consistency::ScaleShiftParams;
 use crate::geometry::DepthKind;
 use crate::node::NodeParams;
-use crate::pipeline::{FinalRefine, Method};
+use crate::pipeline::{CascadeParams, FinalRefine, Method};
 use crate::pnp::PnpParams;
 use crate::reject::network::NetworkParams;
 use crate::reject::SpectralParams;
@@ -20,7 +20,9 @@ use crate::verify::VerifyParams;
 pub struct Params {
     /// Outlier rejection before PnP.
     pub method: Method,
-    /// Whether the prior holds depth or inverse depth.
+    /// The fast path: a budgeted LO-RANSAC that settles easy frames before any rejection.
+    pub cascade: CascadeParams,
+    /// What the prior's values mean: depth, inverse depth or affine-invariant disparity.
     pub depth_kind: DepthKind,
     /// Scale-and-shift alignment of the prior.
     pub align: ScaleShiftParams,

@@ -7,8 +7,8 @@
 use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::{DepthImage, DepthKind, Intrinsics};
-use crate::pnp::{PoseVerifier, Verification};
+use crate::geometry::{DepthImage, DepthKind, Intrinsics, PriorSpace};
+use crate::pnp::{Agreement, PoseVerifier, Verification};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -18,11 +18,18 @@ pub struct VerifyParams {
     /// Distinct hypotheses kept for verification (see `PnpParams::candidates`).
     pub candidates: usize,
     /// Hypotheses RANSAC draws at least when verifying, and between two verifications of its
-    /// candidates while none agrees with the prior in `accept` of the image …
+    /// candidates while none agrees with the prior in `accept` of what the map covers in view
+    /// (at least `min_view` of the image) …
     pub min_iterations: usize,
     pub accept: f64,
+    pub min_view: f64,
+    /// … and the choice changed in the last `settle_checks` verifications …
+    pub settle_checks: usize,
     /// … up to this many hypotheses.
     pub max_iterations: usize,
+    /// A frame whose best candidate agrees with the prior in less than this share of what it
+    /// sees has an unreliable prior: the pose is chosen on geometry alone.
+    pub min_trust: f64,
     /// Map points rendered, at most (an even subsample of the map).
     pub max_map_points: usize,
     /// Side of the render's image cells, pixels.
@@ -41,7 +48,10 @@ impl Default for VerifyParams {
             candidates: 12,
             min_iterations: 1000,
             accept: 0.7,
+            min_view: 0.25,
+            settle_checks: 3,
             max_iterations: 10_000,
+            min_trust: 0.5,
             max_map_points: 10_000,
             cell_px: 32.0,
             tolerance: 0.1,
@@ -59,7 +69,10 @@ impl VerifyParams {
             coverage_weight: self.coverage_weight,
             min_iterations: self.min_iterations,
             accept: self.accept,
+            min_view: self.min_view,
+            settle_checks: self.settle_checks,
             max_iterations: self.max_iterations,
+            min_trust: self.min_trust,
         }
     }
 }
@@ -113,8 +126,9 @@ pub struct PriorVerifier<'a> {
     cell_px: f64,
     cols: usize,
     rows: usize,
-    /// Prior depth per cell (inverse depth already inverted); NaN where unknown.
+    /// Prior coordinate per cell (affine in `space`); NaN where unknown.
     prior: Vec<f32>,
+    space: PriorSpace,
     tolerance: f32,
 }
 
@@ -141,10 +155,7 @@ impl<'a> PriorVerifier<'a> {
                     ((c as f64 + 0.5) * params.cell_px).min(intrinsics.width as f64 - 1.0),
                     ((r as f64 + 0.5) * params.cell_px).min(intrinsics.height as f64 - 1.0),
                 );
-                let d = prior.sample(&centre, intrinsics.width, intrinsics.height).map(|v| match kind {
-                    DepthKind::Depth => v,
-                    DepthKind::InverseDepth => 1.0 / v,
-                });
+                let d = prior.sample(&centre, intrinsics.width, intrinsics.height).map(|v| kind.coordinate(v));
                 match d {
                     Some(d) if d.is_finite() && d > 0.0 => {
                         known += 1;
@@ -161,6 +172,7 @@ impl<'a> PriorVerifier<'a> {
             cols,
             rows,
             prior: cells,
+            space: kind.space(),
             tolerance: params.tolerance as f32,
         })
     }
@@ -210,25 +222,30 @@ impl<'a> PriorVerifier<'a> {
         depth
     }
 
-    /// Share of all image cells in which the map rendered at `pose` agrees with the prior under
-    /// the best increasing affine map depth ≈ a·prior + b (robust fit: the map agreed on by
-    /// the most cells among candidates through two cells each). In [0, 1]; a pose that sees
-    /// little of the map scores low.
-    pub fn agreement(&self, pose: &Isometry3<f64>) -> f64 {
+    /// The image cells in which the map rendered at `pose` agrees with the prior under the best
+    /// increasing affine map in the prior's space (depth ≈ a·x + b, or 1/depth ≈ a·x + b for a
+    /// disparity prior; robust fit: the map agreed on by the most cells among candidates through
+    /// two cells each), and the cells where both are known.
+    pub fn agreement(&self, pose: &Isometry3<f64>) -> Agreement {
         let depth = self.render(pose);
+        let space = self.space;
         let pairs: Vec<(f32, f32)> = self
             .prior
             .iter()
             .zip(&depth)
             .filter(|(d, z)| d.is_finite() && z.is_finite())
-            .map(|(&d, &z)| (d, z))
+            .map(|(&d, &z)| (d, space.of_depth(z as f64) as f32))
             .collect();
-        best_affine_count(&pairs, self.tolerance) as f64 / self.prior.len() as f64
+        Agreement {
+            agreeing: best_affine_count(&pairs, self.tolerance),
+            in_view: pairs.len(),
+            cells: self.prior.len(),
+        }
     }
 }
 
 impl PoseVerifier for PriorVerifier<'_> {
-    fn verify(&self, pose: &Isometry3<f64>) -> f64 {
+    fn verify(&self, pose: &Isometry3<f64>) -> Agreement {
         self.agreement(pose)
     }
 }
@@ -345,10 +362,10 @@ mod tests {
         for (scale, shift) in [(1.0, 0.0), (0.4, -0.5), (2.5, 0.8)] {
             let prior = prior_at(&truth, scale, shift);
             let v = PriorVerifier::new(&map, &prior, DepthKind::Depth, &k, &VerifyParams::default()).unwrap();
-            let good = v.agreement(&truth);
+            let good = v.agreement(&truth).share();
 
             assert!(good > 0.9, "scale {scale}: true pose agrees in {good}");
-            let slightly_off = v.agreement(&pose([1.02, 1.21, 1.4], 0.31));
+            let slightly_off = v.agreement(&pose([1.02, 1.21, 1.4], 0.31)).share();
             assert!(slightly_off > 0.7, "a pose near the truth still agrees: {slightly_off}");
             // Sideways, turned, elsewhere (not straight ahead towards a wall: that changes depth
             // by a constant, which an affine-ambiguous prior cannot tell).
@@ -360,7 +377,7 @@ mod tests {
                 pose([2.0, 2.0, 2.0], 0.0),
             ];
             for wrong in wrong_poses {
-                let bad = v.agreement(&wrong);
+                let bad = v.agreement(&wrong).share();
                 assert!(bad < good - 0.25, "wrong pose {wrong}: {bad} vs true {good}");
             }
         }
@@ -374,7 +391,40 @@ mod tests {
         let depth = prior_at(&truth, 1.0, 0.0);
         let inverse = DepthImage::new(depth.width, depth.height, depth.data.iter().map(|d| 1.0 / d).collect());
         let v = PriorVerifier::new(&map, &inverse, DepthKind::InverseDepth, &k, &VerifyParams::default()).unwrap();
-        assert!(v.agreement(&truth) > 0.9);
+        assert!(v.agreement(&truth).share() > 0.9);
+    }
+
+    #[test]
+    fn affine_disparity_priors_are_verified_in_inverse_depth() {
+        let map = RenderMap::new(&room(), 40_000);
+        let k = intrinsics();
+        let truth = pose([1.5, 2.0, 1.0], -0.2);
+        let depth = prior_at(&truth, 1.0, 0.0);
+        // prior = 2/z + 0.5: not affine in depth, nor after inverting.
+        let disparity = DepthImage::new(depth.width, depth.height, depth.data.iter().map(|d| 2.0 / d + 0.5).collect());
+        let params = VerifyParams::default();
+        let v = PriorVerifier::new(&map, &disparity, DepthKind::Disparity, &k, &params).unwrap();
+        let good = v.agreement(&truth);
+        assert!(good.share() > 0.9, "{good:?}");
+        let bad = v.agreement(&pose([1.0, 1.2, 1.4], 1.2));
+        assert!(bad.share() < good.share() - 0.25, "{bad:?} vs {good:?}");
+    }
+
+    #[test]
+    fn a_map_covering_part_of_the_view_is_judged_on_what_it_covers() {
+        // Only the left half of the room's points: the true pose explains all it sees.
+        let half: Vec<_> = room().into_iter().filter(|p| p.y < 2.0).collect();
+        let map = RenderMap::new(&half, 40_000);
+        let k = intrinsics();
+        let truth = pose([1.0, 1.2, 1.4], 0.3);
+        let v = PriorVerifier::new(&map, &prior_at(&truth, 1.0, 0.0), DepthKind::Depth, &k, &VerifyParams::default())
+            .unwrap();
+        let a = v.agreement(&truth);
+        assert!(a.in_view < a.cells, "{a:?}");
+        // Over the whole image it could never be accepted (0.7); over what it sees it is (only
+        // cells on the map's border, half floor half missing wall, disagree).
+        assert!(a.share() < 0.5, "{a:?}");
+        assert!(a.in_view_share(0.25) > 0.75, "{a:?}");
     }
 
     #[test]

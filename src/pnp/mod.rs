@@ -34,6 +34,8 @@ use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaterni
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::geometry::PriorSpace;
+
 pub use epnp::epnp;
 pub use lm::{pose_covariance, refine_pose, RefineOptions, RefineResult};
 pub use p3p::{p3p, P3pSolutions};
@@ -119,9 +121,36 @@ impl Default for PnpParams {
 }
 
 /// Evidence about a camera-to-map pose beyond the correspondences, e.g. how the map rendered at
-/// it agrees with a dense depth prior; higher is better, in [0, 1].
+/// it agrees with a dense depth prior, counted over image cells.
 pub trait PoseVerifier {
-    fn verify(&self, pose: &Isometry3<f64>) -> f64;
+    fn verify(&self, pose: &Isometry3<f64>) -> Agreement;
+}
+
+/// How a pose agrees with the evidence of a [`PoseVerifier`], over the image's cells.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Agreement {
+    /// Cells where the pose agrees with the evidence.
+    pub agreeing: usize,
+    /// Cells where the pose can be checked at all (the map is seen there and the prior known).
+    pub in_view: usize,
+    /// All cells of the image.
+    pub cells: usize,
+}
+
+impl Agreement {
+    /// Share of the whole image that agrees: how candidates of one frame are compared (a pose
+    /// that explains more of the image is better).
+    pub fn share(&self) -> f64 {
+        self.agreeing as f64 / self.cells.max(1) as f64
+    }
+
+    /// Share of what can be checked that agrees, counting at least `min_view` of the image as
+    /// checkable: how a pose is accepted whatever share of the view the map covers (a small map
+    /// or one seen from its edge), without trusting a pose that sees almost nothing of it.
+    pub fn in_view_share(&self, min_view: f64) -> f64 {
+        let floor = (min_view * self.cells as f64).max(1.0);
+        self.agreeing as f64 / (self.in_view as f64).max(floor)
+    }
 }
 
 /// A verifier and how [`solve_pnp_ransac_guided`] uses it: it keeps the `candidates` best
@@ -133,11 +162,18 @@ pub struct Verification<'a> {
     pub candidates: usize,
     pub coverage_weight: f64,
     /// Hypotheses drawn at least (the verifier can only choose one that was drawn); the pool is
-    /// verified after as many samples again, until a candidate's agreement reaches `accept`
-    /// (or `max_iterations`, if more than PnP's own).
+    /// verified after as many samples again, until a candidate's in-view agreement
+    /// ([`Agreement::in_view_share`] with `min_view`) reaches `accept`, the choice stays the
+    /// same over `settle_checks` verifications in a row, or `max_iterations` (if more than
+    /// PnP's own) were drawn.
     pub min_iterations: usize,
     pub accept: f64,
+    pub min_view: f64,
+    pub settle_checks: usize,
     pub max_iterations: usize,
+    /// Below this in-view agreement of every candidate the evidence is not trusted for the
+    /// frame: the pose is chosen on geometry alone (coverage cost), as without a verifier.
+    pub min_trust: f64,
 }
 
 /// What guides [`solve_pnp_ransac_guided`] beyond the correspondences; each part optional.
@@ -145,8 +181,9 @@ pub struct Verification<'a> {
 pub struct Guidance<'a> {
     /// One per correspondence, higher = more likely correct: PROSAC sampling.
     pub scores: Option<&'a [f32]>,
-    /// Prior depth per correspondence (affine-ambiguous, NaN where unknown).
+    /// Prior coordinate per correspondence, affine in `prior_space` (NaN where unknown).
     pub prior_depths: Option<&'a [f64]>,
+    pub prior_space: PriorSpace,
     pub verification: Option<Verification<'a>>,
 }
 

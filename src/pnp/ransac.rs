@@ -12,8 +12,8 @@ use super::lm::{
 };
 use super::p3p::p3p_unit;
 use super::rng::WyRand;
-use super::{Guidance, MapToCamera, PnpError, PnpParams, PnpSolution, RobustLoss, Verification};
-use crate::geometry::Intrinsics;
+use super::{Agreement, Guidance, MapToCamera, PnpError, PnpParams, PnpSolution, RobustLoss, Verification};
+use crate::geometry::{Intrinsics, PriorSpace};
 use nalgebra::{Matrix3, Point2, Point3, SymmetricEigen, Vector2, Vector3};
 
 /// Sample size of the minimal solver.
@@ -240,6 +240,14 @@ impl Data {
     }
 }
 
+/// The prior's check on a hypothesis' inliers: their depths under it must agree with the prior
+/// coordinates through one increasing affine map in `space`, within `tolerance` (relative).
+struct PriorCheck {
+    values: Vec<f64>,
+    space: PriorSpace,
+    tolerance: f64,
+}
+
 /// Coverage scoring (see [`PnpParams::coverage_cell_px`]): each position's image cell, and a
 /// stamped scratch array that counts distinct cells without clearing. With prior depths, only
 /// inliers whose depth under the pose agrees with the prior count (see [`depth_agreement`]).
@@ -247,14 +255,14 @@ struct Coverage {
     cell: Vec<u32>,
     seen: Vec<u32>,
     stamp: u32,
-    /// Prior depth per position (any affine scale; NaN where unknown) and relative tolerance.
-    prior: Option<(Vec<f64>, f64)>,
+    /// Prior coordinate per position (affine in its space; NaN where unknown).
+    prior: Option<PriorCheck>,
     inliers: Vec<usize>,
     depths: Vec<(f64, f64)>,
 }
 
 impl Coverage {
-    fn new(px: &[Vector2<f64>], cell_px: f64, prior: Option<(Vec<f64>, f64)>) -> Option<Self> {
+    fn new(px: &[Vector2<f64>], cell_px: f64, prior: Option<PriorCheck>) -> Option<Self> {
         if !(cell_px.is_finite() && cell_px > 0.0) || px.is_empty() {
             return None;
         }
@@ -336,7 +344,7 @@ impl Coverage {
             -(cells as f64) - 0.5 * inliers as f64 / (n + 1.0) + 0.25 * msac / (n * data.th2 + 1.0)
         };
         let plain = cost(cells, self.inliers.len(), msac);
-        let Some((prior, tolerance)) = &self.prior else { return Some((plain, self.inliers.len(), cells)) };
+        let Some(prior) = &self.prior else { return Some((plain, self.inliers.len(), cells)) };
         if plain >= best {
             return Some((plain, self.inliers.len(), cells));
         }
@@ -344,9 +352,9 @@ impl Coverage {
         self.depths.clear();
         for &i in &self.inliers {
             let z = data.pose_depth(pose, i);
-            self.depths.push((prior[i], z));
+            self.depths.push((prior.values[i], prior.space.of_depth(z)));
         }
-        let agree = depth_agreement(&self.depths, *tolerance);
+        let agree = depth_agreement(&self.depths, prior.tolerance);
         let stamp = self.next_stamp();
         let (mut cells, mut kept) = (0usize, 0usize);
         for (&i, &ok) in self.inliers.iter().zip(&agree) {
@@ -372,7 +380,7 @@ struct Candidate {
     /// Inlier positions as a bit set, for the cluster test.
     members: Vec<u64>,
     /// The verifier's agreement once verified (after local optimisation).
-    agreement: Option<f64>,
+    agreement: Option<Agreement>,
 }
 
 /// The best distinct hypotheses by coverage cost, and the verifier that chooses among them (see
@@ -438,7 +446,7 @@ impl<'a> Pool<'a> {
     }
 
     /// The agreement of candidate `i`, verified once: after local optimisation (optional).
-    fn verify(&mut self, i: usize, data: &Data, coverage: Option<&mut Coverage>, idx_buf: &mut Vec<usize>) -> f64 {
+    fn verify(&mut self, i: usize, data: &Data, coverage: Option<&mut Coverage>, idx_buf: &mut Vec<usize>) -> Agreement {
         let c = &mut self.items[i];
         if let Some(agreement) = c.agreement {
             return agreement;
@@ -452,25 +460,61 @@ impl<'a> Pool<'a> {
         agreement
     }
 
-    /// Verifies every candidate; the best agreement.
+    /// Verifies every candidate; the best in-view agreement.
     fn verify_all(&mut self, data: &Data, mut coverage: Option<&mut Coverage>, idx_buf: &mut Vec<usize>) -> f64 {
-        (0..self.items.len()).map(|i| self.verify(i, data, coverage.as_deref_mut(), idx_buf)).fold(0.0, f64::max)
+        let min_view = self.verification.min_view;
+        (0..self.items.len())
+            .map(|i| self.verify(i, data, coverage.as_deref_mut(), idx_buf).in_view_share(min_view))
+            .fold(0.0, f64::max)
     }
 
-    /// Verifies the lowest-cost candidate alone; its agreement.
+    /// Verifies the lowest-cost candidate alone; its in-view agreement.
     fn verify_best(&mut self, data: &Data, coverage: Option<&mut Coverage>, idx_buf: &mut Vec<usize>) -> f64 {
-        self.extreme(false).map_or(0.0, |i| self.verify(i, data, coverage, idx_buf))
+        let min_view = self.verification.min_view;
+        self.extreme(false).map_or(0.0, |i| self.verify(i, data, coverage, idx_buf).in_view_share(min_view))
     }
 
-    /// The verified candidate with the most agreement + `coverage_weight`·cells / most cells.
+    /// The best in-view agreement of any verified candidate: how far the frame's evidence can be
+    /// trusted.
+    fn trust(&self) -> f64 {
+        let min_view = self.verification.min_view;
+        self.items.iter().filter_map(|c| c.agreement).map(|a| a.in_view_share(min_view)).fold(0.0, f64::max)
+    }
+
+    /// The verified candidate with the most agreement + `coverage_weight`·cells / most cells;
+    /// when no candidate reaches `min_trust`, the lowest-cost one (geometry alone).
     fn choose(&self) -> Option<MapToCamera> {
+        if self.trust() < self.verification.min_trust {
+            return self.extreme(false).map(|i| self.items[i].pose);
+        }
         let most_cells = self.items.iter().map(|c| c.cells).max()?.max(1) as f64;
         let weight = self.verification.coverage_weight;
         self.items
             .iter()
-            .filter_map(|c| Some((c.agreement? + weight * c.cells as f64 / most_cells, c)))
+            .filter_map(|c| Some((c.agreement?.share() + weight * c.cells as f64 / most_cells, c)))
             .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cost.total_cmp(&a.1.cost)))
             .map(|(_, c)| c.pose)
+    }
+}
+
+/// Counts the verifications in a row that chose the same pose: a frame whose choice stays put
+/// while more hypotheses are drawn is settled, whatever its prior agreement.
+#[derive(Default)]
+struct Settling {
+    last: Option<MapToCamera>,
+    same: usize,
+}
+
+impl Settling {
+    /// Records this check's choice; whether it was the same in the last `checks` checks (0: never).
+    fn unchanged(&mut self, choice: Option<MapToCamera>, checks: usize) -> bool {
+        if choice.is_some() && choice == self.last {
+            self.same += 1;
+        } else {
+            self.same = 1;
+            self.last = choice;
+        }
+        checks > 0 && self.same >= checks
     }
 }
 
@@ -624,7 +668,7 @@ pub fn solve_pnp_ransac_with_prior(
     params: &PnpParams,
     seed: u64,
 ) -> Result<PnpSolution, PnpError> {
-    let guidance = Guidance { scores, prior_depths, verification: None };
+    let guidance = Guidance { scores, prior_depths, ..Guidance::default() };
     solve_pnp_ransac_guided(intrinsics, pixels, points, &guidance, params, seed)
 }
 
@@ -641,7 +685,7 @@ pub fn solve_pnp_ransac_guided(
     params: &PnpParams,
     seed: u64,
 ) -> Result<PnpSolution, PnpError> {
-    let Guidance { scores, prior_depths, verification } = *guidance;
+    let Guidance { scores, prior_depths, prior_space, verification } = *guidance;
     check_basic(intrinsics, pixels.len(), points.len())?;
     if let Some(d) = prior_depths {
         if d.len() != pixels.len() {
@@ -696,7 +740,11 @@ pub fn solve_pnp_ransac_guided(
     let mut prosac = pos_of_rank.as_ref().map(|_| Prosac::new(n, params.max_iterations));
     let prior = prior_depths
         .filter(|_| params.prior_tolerance > 0.0)
-        .map(|d| (orig.iter().map(|&i| d[i]).collect(), params.prior_tolerance));
+        .map(|d| PriorCheck {
+            values: orig.iter().map(|&i| d[i]).collect(),
+            space: prior_space,
+            tolerance: params.prior_tolerance,
+        });
     let mut coverage = Coverage::new(&data.px, params.coverage_cell_px, prior);
     let mut pool = verification
         .filter(|v| v.candidates > 0 && coverage.is_some())
@@ -722,6 +770,7 @@ pub fn solve_pnp_ransac_guided(
         None => (params.min_iterations, params.max_iterations),
     };
     let mut accepted = false;
+    let mut settled = Settling::default();
     let mut early_checked = false;
     let mut early_accepted = false;
     while iterations < max_iterations {
@@ -740,7 +789,8 @@ pub fn solve_pnp_ransac_guided(
                 }
                 let check_every = p.verification.min_iterations.max(1);
                 if !accepted && iterations >= min_iterations && iterations % check_every == 0 {
-                    accepted = p.verify_all(&data, coverage.as_mut(), &mut idx_buf) >= accept;
+                    accepted = p.verify_all(&data, coverage.as_mut(), &mut idx_buf) >= accept
+                        || settled.unchanged(p.choose(), p.verification.settle_checks);
                 }
                 if accepted && (plain_done || iterations >= params.max_iterations) {
                     break;

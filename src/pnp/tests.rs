@@ -555,10 +555,11 @@ struct NearPose {
 }
 
 impl PoseVerifier for NearPose {
-    fn verify(&self, pose: &Isometry3<f64>) -> f64 {
+    fn verify(&self, pose: &Isometry3<f64>) -> Agreement {
         self.calls.set(self.calls.get() + 1);
         let (rot, trans) = pose_error(pose, &self.truth);
-        (1.0 - 5.0 * rot - trans).max(0.0)
+        let share = (1.0 - 5.0 * rot - trans).max(0.0);
+        Agreement { agreeing: (share * 1000.0).round() as usize, in_view: 1000, cells: 1000 }
     }
 }
 
@@ -589,7 +590,10 @@ fn a_verifier_chooses_among_the_candidates() {
         coverage_weight: 0.25,
         min_iterations: 500,
         accept: 0.9,
+        min_view: 0.25,
+        settle_checks: 0,
         max_iterations: 5000,
+        min_trust: 0.0,
     };
     let guidance = Guidance { verification: Some(verification), ..Guidance::default() };
     let verified = solve_pnp_ransac_guided(&intr, &px, &pw, &guidance, &params, 2).expect("a pose");
@@ -599,6 +603,14 @@ fn a_verifier_chooses_among_the_candidates() {
     assert!(verified.iterations >= 500, "the verifier's minimum is drawn: {}", verified.iterations);
     let calls = verifier.calls.get();
     assert!(calls > 1 && calls <= 8 * (5000 / 500 + 1), "{calls} verifications");
+
+    // A verifier that agrees with no candidate (an unreliable prior) is not trusted: the pose is
+    // chosen on geometry alone, as without it.
+    let far = NearPose { truth: random_pose(&mut WyRand::new(77)), calls: Default::default() };
+    let untrusted = Verification { verifier: &far, min_trust: 0.5, ..verification };
+    let guidance_far = Guidance { verification: Some(untrusted), ..Guidance::default() };
+    let geometric = solve_pnp_ransac_guided(&intr, &px, &pw, &guidance_far, &params, 2).expect("a pose");
+    assert!(pose_error(&geometric.pose, &wrong).0 < 0.01, "an untrusted verifier leaves geometry's choice");
 
     // No coverage scoring: no pool, the verifier is never asked.
     let unscored = PnpParams { coverage_cell_px: 0.0, ..params };
@@ -622,7 +634,10 @@ fn an_easy_frame_is_verified_once() {
         coverage_weight: 0.25,
         min_iterations: 1000,
         accept: 0.9,
+        min_view: 0.25,
+        settle_checks: 0,
         max_iterations: 10_000,
+        min_trust: 0.0,
     };
     let guidance = Guidance { verification: Some(verification), ..Guidance::default() };
     let verified = solve_pnp_ransac_guided(&k(), &px, &pw, &guidance, &params, 4).expect("a pose");

@@ -7,7 +7,7 @@ use nalgebra::{Point3, Vector3};
 
 use super::inputs::IndexedMap;
 use super::FrameGeometry;
-use crate::consistency::{estimate_scale, ScaleShift};
+use crate::consistency::estimate_scale;
 use crate::frame::Frame;
 use crate::geometry::{centroid, prior_normals, DepthKind};
 
@@ -44,7 +44,7 @@ pub fn centred_clouds(geometry: &FrameGeometry, rescale: bool) -> (Vec<Vector3<f
 /// oriented towards the camera.
 pub fn image_normals(frame: &Frame, geometry: &FrameGeometry, kind: DepthKind) -> Vec<Vector3<f64>> {
     let Some(prior) = &frame.depth_prior else { return vec![Vector3::zeros(); geometry.len()] };
-    let align = geometry.scale_shift.unwrap_or(ScaleShift::IDENTITY);
+    let align = geometry.alignment();
     prior_normals(&frame.intrinsics, prior, kind, &geometry.pixels, |d| align.depth(d))
 }
 
@@ -99,6 +99,7 @@ pub fn features(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::consistency::ScaleShift;
     use nalgebra::Point2;
 
     fn geometry(image: Vec<Point3<f64>>, map: Vec<Point3<f64>>, aligned: bool) -> FrameGeometry {

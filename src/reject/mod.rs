@@ -14,7 +14,7 @@ use crate::consistency::{
     angle_consistency, distance_consistency, estimate_scale_shift, ConsistencyMatrix, ScaleShift, ScaleShiftParams,
 };
 use crate::frame::Frame;
-use crate::geometry::{DepthKind, Intrinsics, PointIndex};
+use crate::geometry::{DepthKind, Intrinsics, PointIndex, PriorSpace};
 
 /// The per-frame geometry every rejector works on: the correspondences split into pixels and
 /// map points, each pixel's ray and prior depth, and the image cloud o_i (eq. 2) after the
@@ -27,9 +27,12 @@ pub struct FrameGeometry {
     pub matcher_scores: Vec<f32>,
     /// Each pixel's ray scaled to z = 1.
     pub rays: Vec<Vector3<f64>>,
-    /// Prior depth per pixel (depth units, inverse depth already inverted); NaN where unknown.
-    pub prior_depth: Vec<f64>,
-    /// Metric depth ≈ scale·prior + shift, when estimated.
+    /// Prior coordinate per pixel ([`DepthKind::coordinate`]: affine in depth or in inverse
+    /// depth, see `prior_space`); NaN where unknown.
+    pub prior_coordinate: Vec<f64>,
+    /// The space in which `prior_coordinate` is affine.
+    pub prior_space: PriorSpace,
+    /// The prior's map to metric depth, when estimated.
     pub scale_shift: Option<ScaleShift>,
     /// o_i: pixels back-projected with the aligned prior (prior units if not aligned).
     pub image_points: Vec<Point3<f64>>,
@@ -39,22 +42,16 @@ pub struct FrameGeometry {
 }
 
 impl FrameGeometry {
-    /// Builds the geometry of `frame`. Without a depth prior, `prior_depth` is all NaN and the
+    /// Builds the geometry of `frame`. Without a depth prior, `prior_coordinate` is all NaN and the
     /// image cloud empty; rejectors that need it report that.
     pub fn build(frame: &Frame, kind: DepthKind, align: Option<&ScaleShiftParams>) -> Self {
         let k = frame.intrinsics;
         let pixels: Vec<Point2<f64>> = frame.correspondences.iter().map(|c| c.pixel).collect();
         let rays = pixels.iter().map(|p| Vector3::new((p.x - k.cx) / k.fx, (p.y - k.cy) / k.fy, 1.0)).collect();
-        let prior_depth = match &frame.depth_prior {
+        let prior_coordinate = match &frame.depth_prior {
             Some(prior) => pixels
                 .iter()
-                .map(|p| {
-                    let value = prior.sample(p, k.width, k.height).unwrap_or(f64::NAN);
-                    match kind {
-                        DepthKind::Depth => value,
-                        DepthKind::InverseDepth => 1.0 / value,
-                    }
-                })
+                .map(|p| prior.sample(p, k.width, k.height).map_or(f64::NAN, |v| kind.coordinate(v)))
                 .collect(),
             None => vec![f64::NAN; pixels.len()],
         };
@@ -64,7 +61,8 @@ impl FrameGeometry {
             matcher_scores: frame.correspondences.iter().map(|c| c.score).collect(),
             pixels,
             rays,
-            prior_depth,
+            prior_coordinate,
+            prior_space: kind.space(),
             scale_shift: None,
             image_points: Vec::new(),
             image_normals: Vec::new(),
@@ -94,10 +92,11 @@ impl FrameGeometry {
     /// Scale and shift of the prior from the correspondences themselves; local pairs are each
     /// pixel's nearest neighbours in the image.
     fn estimate_scale_shift(&self, params: &ScaleShiftParams) -> Option<ScaleShift> {
-        let known: Vec<usize> =
-            (0..self.len()).filter(|&i| self.prior_depth[i].is_finite() && self.prior_depth[i] > 0.0).collect();
+        let known: Vec<usize> = (0..self.len())
+            .filter(|&i| self.prior_coordinate[i].is_finite() && self.prior_coordinate[i] > 0.0)
+            .collect();
         let rays: Vec<_> = known.iter().map(|&i| self.rays[i]).collect();
-        let depth: Vec<_> = known.iter().map(|&i| self.prior_depth[i]).collect();
+        let prior: Vec<_> = known.iter().map(|&i| self.prior_coordinate[i]).collect();
         let map: Vec<_> = known.iter().map(|&i| self.map_points[i]).collect();
         let flat: Vec<Point3<f32>> =
             known.iter().map(|&i| Point3::new(self.pixels[i].x as f32, self.pixels[i].y as f32, 0.0)).collect();
@@ -111,16 +110,21 @@ impl FrameGeometry {
                 }
             }
         }
-        estimate_scale_shift(&rays, &depth, &map, &pairs, params)
+        estimate_scale_shift(&rays, &prior, &map, &pairs, self.prior_space, params)
     }
 
-    /// o_i = (s·d_i + t)·ray_i; unknown prior depths give a NaN point.
+    /// The prior's map to depth: the estimated one, else the identity of its space.
+    pub fn alignment(&self) -> ScaleShift {
+        self.scale_shift.unwrap_or(ScaleShift::identity(self.prior_space))
+    }
+
+    /// o_i = depth(x_i)·ray_i; unknown prior depths give a NaN point.
     fn lift(&mut self) {
-        let align = self.scale_shift.unwrap_or(ScaleShift::IDENTITY);
+        let align = self.alignment();
         self.image_points = self
             .rays
             .iter()
-            .zip(&self.prior_depth)
+            .zip(&self.prior_coordinate)
             .map(|(r, &d)| {
                 let z = align.depth(d);
                 if z.is_finite() && z > 0.0 {

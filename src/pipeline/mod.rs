@@ -9,12 +9,16 @@ use serde::{Deserialize, Serialize};
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::params::Params;
-use crate::pnp::{
-    pose_covariance, refine_pose, solve_pnp_ransac_guided, Guidance, PnpError, RefineOptions, RobustLoss,
-};
+use crate::pnp::{solve_pnp_ransac_guided, Guidance, PnpError, PnpSolution};
 use crate::reject::network::NetworkRejector;
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
 use crate::verify::{PriorVerifier, RenderMap};
+
+mod cascade;
+mod refine;
+
+pub use cascade::{CascadeParams, FastPathCheck};
+pub use refine::FinalRefine;
 
 /// How outliers are rejected before PnP.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -41,36 +45,11 @@ impl Method {
     }
 }
 
-/// The last refinement over every correspondence that agrees with the pose.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct FinalRefine {
-    pub enabled: bool,
-    /// A correspondence joins when its reprojection error is below
-    /// `threshold_px + fx·threshold_m / depth`: a pixel term plus a 3D term.
-    pub threshold_px: f64,
-    pub threshold_m: f64,
-    pub loss: RobustLoss,
-    pub loss_scale_px: f64,
-    pub max_iterations: usize,
-}
-
-impl Default for FinalRefine {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            threshold_px: 4.0,
-            threshold_m: 0.03,
-            loss: RobustLoss::Trivial,
-            loss_scale_px: 4.0,
-            max_iterations: 20,
-        }
-    }
-}
-
 /// Wall-clock time of each stage, milliseconds.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct StageTimings {
+    /// The cascade's budgeted LO-RANSAC (the whole PnP when it settles the frame).
+    pub fast_path_ms: f64,
     pub geometry_ms: f64,
     pub reject_ms: f64,
     pub pnp_ms: f64,
@@ -125,6 +104,12 @@ pub struct Localization {
     /// PnP inliers (among the correspondences PnP saw).
     pub num_inliers: usize,
     pub scale_shift: Option<ScaleShift>,
+    /// How far the depth prior can be trusted on this frame: the share of what the map covers
+    /// in view at the returned pose where the rendered map agrees with the prior (up to the
+    /// prior's unknown affine map), in [0, 1]. `None` without a prior, a map or a pose.
+    pub prior_quality: Option<f64>,
+    /// Whether the cascade's budgeted LO-RANSAC settled the frame (no rejection ran).
+    pub fast_path: bool,
     pub timings: StageTimings,
     pub failure: Option<Failure>,
 }
@@ -189,20 +174,52 @@ impl Localizer {
             kept: Vec::new(),
             num_inliers: 0,
             scale_shift: None,
+            prior_quality: None,
+            fast_path: false,
             timings: StageTimings::default(),
             failure: None,
         };
         if let Some(e) = &self.setup_error {
             out.failure = Some(Failure::Rejection(RejectError::Failed(e.clone())));
-            out.timings.total_ms = ms_since(start);
-            return out;
-        }
-        if let Err(failure) = self.validate(frame) {
+        } else if let Err(failure) = self.validate(frame) {
             out.failure = Some(failure);
-            out.timings.total_ms = ms_since(start);
-            return out;
+        } else if !self.fast_path(frame, &mut out) {
+            self.full_path(frame, &mut out);
         }
+        out.timings.total_ms = ms_since(start);
+        out
+    }
 
+    /// The cascade's first step: a budgeted LO-RANSAC on the raw correspondences. Whether it
+    /// settled the frame (then `out` holds the pose and its RANSAC inliers as the kept set).
+    fn fast_path(&self, frame: &Frame, out: &mut Localization) -> bool {
+        let p = &self.params;
+        if !p.cascade.enabled || p.method == Method::Ransac {
+            return false;
+        }
+        let t = Instant::now();
+        let settled = p.cascade.settle(frame, &p.pnp, p.seed);
+        out.timings.fast_path_ms = ms_since(t);
+        let Ok(mut solution) = settled else { return false };
+        if p.final_refine.enabled {
+            self.refine_on_all(frame, &mut solution);
+        }
+        out.fast_path = true;
+        out.kept = frame
+            .correspondences
+            .iter()
+            .zip(&solution.inliers)
+            .filter(|(_, &inlier)| inlier)
+            .map(|(c, _)| with_score(*c, 1.0))
+            .collect();
+        self.accept(frame, &solution, out);
+        out.timings.pnp_ms = out.timings.fast_path_ms;
+        true
+    }
+
+    /// Rejection, then PnP on the kept correspondences (sampled in score order), verified
+    /// against the prior.
+    fn full_path(&mut self, frame: &Frame, out: &mut Localization) {
         // Geometry: rays, prior depths and the aligned image cloud (only a rejector needs them).
         let t = Instant::now();
         let align = match self.params.method {
@@ -224,13 +241,11 @@ impl Localizer {
             Some(Err(e)) => {
                 out.failure = Some(Failure::Rejection(e));
                 out.timings.reject_ms = ms_since(t);
-                out.timings.total_ms = ms_since(start);
-                return out;
+                return;
             }
         };
         out.timings.reject_ms = ms_since(t);
 
-        // PnP on the kept correspondences, sampled in score order.
         let t = Instant::now();
         let subset: Vec<usize> = match &rejection {
             Some(r) => r.kept.clone(),
@@ -240,32 +255,26 @@ impl Localizer {
         let points: Vec<_> = subset.iter().map(|&i| frame.correspondences[i].point).collect();
         let scores: Option<Vec<f32>> = rejection.as_ref().map(|r| subset.iter().map(|&i| r.scores[i]).collect());
         let priors: Option<Vec<f64>> =
-            geometry.has_prior().then(|| subset.iter().map(|&i| geometry.prior_depth[i]).collect());
-        let verify = &self.params.verify;
-        let verifier = match (&frame.depth_prior, verify.enabled) {
-            (Some(prior), true) => {
-                PriorVerifier::new(&self.render_map, prior, self.params.depth_kind, &frame.intrinsics, verify)
-            }
-            _ => None,
-        };
+            geometry.has_prior().then(|| subset.iter().map(|&i| geometry.prior_coordinate[i]).collect());
+        let verifier = self.verifier(frame);
         let guidance = Guidance {
             scores: scores.as_deref(),
             prior_depths: priors.as_deref(),
-            verification: verifier.as_ref().map(|v| verify.verification(v)),
+            prior_space: geometry.prior_space,
+            verification: verifier.as_ref().map(|v| self.params.verify.verification(v)),
         };
         let solved =
             solve_pnp_ransac_guided(&frame.intrinsics, &pixels, &points, &guidance, &self.params.pnp, self.params.seed);
-        out.timings.pnp_ms = ms_since(t);
+        let with_scores = |r: &crate::reject::Rejection| -> Vec<Correspondence> {
+            subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect()
+        };
         match solved {
             Ok(mut solution) => {
                 if rejection.is_some() && self.params.final_refine.enabled {
                     self.refine_on_all(frame, &mut solution);
                 }
-                out.pose = Some(solution.pose);
-                out.covariance = Some(solution.covariance);
-                out.num_inliers = solution.num_inliers;
                 out.kept = match &rejection {
-                    Some(r) => subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect(),
+                    Some(r) => with_scores(r),
                     None => subset
                         .iter()
                         .zip(&solution.inliers)
@@ -273,48 +282,45 @@ impl Localizer {
                         .map(|(&i, _)| with_score(frame.correspondences[i], 1.0))
                         .collect(),
                 };
+                self.accept(frame, &solution, out);
             }
             Err(e) => {
                 if let Some(r) = &rejection {
-                    out.kept = subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect();
+                    out.kept = with_scores(r);
                 }
                 out.failure = Some(Failure::Pnp(e));
             }
         }
-        out.timings.total_ms = ms_since(start);
-        out
+        out.timings.pnp_ms = ms_since(t);
+    }
+
+    /// Fills `out` with the solved pose, and the prior's quality at it.
+    fn accept(&self, frame: &Frame, solution: &PnpSolution, out: &mut Localization) {
+        out.pose = Some(solution.pose);
+        out.covariance = Some(solution.covariance);
+        out.num_inliers = solution.num_inliers;
+        out.prior_quality =
+            self.verifier(frame).map(|v| v.agreement(&solution.pose).in_view_share(self.params.verify.min_view));
+    }
+
+    /// The verifier of PnP's hypotheses against the frame's dense prior, when there is a prior,
+    /// a map and verification is on.
+    fn verifier(&self, frame: &Frame) -> Option<PriorVerifier<'_>> {
+        let verify = &self.params.verify;
+        match (&frame.depth_prior, verify.enabled) {
+            (Some(prior), true) => {
+                PriorVerifier::new(&self.render_map, prior, self.params.depth_kind, &frame.intrinsics, verify)
+            }
+            _ => None,
+        }
     }
 
     /// Rejection keeps a subset; once the pose is known, every correspondence that agrees with
-    /// it (reprojection below `final_refine.threshold_px`) sharpens it in a last robust LM.
-    fn refine_on_all(&self, frame: &Frame, solution: &mut crate::pnp::PnpSolution) {
-        let p = &self.params.final_refine;
-        let k = &frame.intrinsics;
-        let to_cam = solution.pose.inverse();
-        let agreeing: Vec<&Correspondence> = frame
-            .correspondences
-            .iter()
-            .filter(|c| {
-                let x = to_cam.transform_point(&c.point);
-                // A map point off by `threshold_m` moves fx·threshold_m/z pixels: near points may
-                // be far off in pixels and still good.
-                let tolerance = p.threshold_px + k.fx * p.threshold_m / x.z;
-                k.project(&x).is_some_and(|px| (px - c.pixel).norm() < tolerance)
-            })
-            .collect();
-        if agreeing.len() < self.params.pnp.min_inliers.max(4) {
-            return;
-        }
-        let pixels: Vec<_> = agreeing.iter().map(|c| c.pixel).collect();
-        let points: Vec<_> = agreeing.iter().map(|c| c.point).collect();
-        let options = RefineOptions { max_iterations: p.max_iterations, loss: p.loss, loss_scale_px: p.loss_scale_px };
-        if let Ok(refined) = refine_pose(k, &pixels, &points, &solution.pose, &options) {
-            if let Ok(cov) = pose_covariance(k, &pixels, &points, &refined.pose) {
-                solution.covariance = cov;
-            }
-            solution.pose = refined.pose;
-            solution.rmse_px = refined.rmse_px;
-        }
+    /// it within the frame's own noise sharpens it in a last LM ([`FinalRefine`]).
+    fn refine_on_all(&self, frame: &Frame, solution: &mut PnpSolution) {
+        let min_count = self.params.pnp.min_inliers.max(4);
+        let threshold = self.params.pnp.threshold_px;
+        self.params.final_refine.apply(&frame.intrinsics, &frame.correspondences, threshold, min_count, solution);
     }
 
     fn validate(&self, frame: &Frame) -> Result<(), Failure> {

@@ -1,0 +1,446 @@
+//! Alignment of the depth prior's unknown affine map from the correspondences themselves: a
+//! monocular prior is known only up to scale and shift, in depth (metric-like networks) or in
+//! inverse depth (affine-invariant disparity). The paper estimates a scale only (eq. 8) and lists
+//! the shift as a limitation; here pairs of correspondences vote for both.
+
+use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::PriorSpace;
+
+/// The prior's affine map to metric depth: in [`PriorSpace::Depth`] depth = `scale`·x + `shift`,
+/// in [`PriorSpace::Disparity`] 1/depth = `scale`·x + `shift` (x = the prior coordinate,
+/// [`crate::geometry::DepthKind::coordinate`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ScaleShift {
+    pub scale: f64,
+    pub shift: f64,
+    /// How many sampled pairs agreed with the estimate (a confidence, not a probability).
+    pub support: usize,
+    #[serde(default)]
+    pub space: PriorSpace,
+}
+
+impl ScaleShift {
+    /// Depth = prior coordinate.
+    pub const IDENTITY: Self = Self::identity(PriorSpace::Depth);
+
+    /// The unit map of `space`: depth = x, or 1/depth = x.
+    pub const fn identity(space: PriorSpace) -> Self {
+        Self { scale: 1.0, shift: 0.0, support: 0, space }
+    }
+
+    /// Metric depth of prior coordinate `x` (non-finite or ≤ 0 where the map says nothing).
+    pub fn depth(&self, x: f64) -> f64 {
+        let y = self.scale * x + self.shift;
+        match self.space {
+            PriorSpace::Depth => y,
+            PriorSpace::Disparity => 1.0 / y,
+        }
+    }
+
+    /// ∂depth/∂scale and ∂depth/∂shift at `x`.
+    fn gradient(&self, x: f64) -> (f64, f64) {
+        match self.space {
+            PriorSpace::Depth => (x, 1.0),
+            PriorSpace::Disparity => {
+                let z = self.depth(x);
+                (-x * z * z, -z * z)
+            }
+        }
+    }
+}
+
+/// Parameters of [`estimate_scale_shift`].
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ScaleShiftParams {
+    /// Neighbours per correspondence in the image, whose pairs vote (local pairs keep their
+    /// length even inside a wrongly placed but rigid patch).
+    pub local_neighbours: usize,
+    /// At most this many local pairs in all (fewer neighbours each for large frames).
+    pub max_local_pairs: usize,
+    /// Random global pairs that vote as well.
+    pub global_pairs: usize,
+    /// Shifts tried, as a fraction of the median prior coordinate: −range..=range.
+    pub shift_range: f64,
+    /// Coarse grid of shifts, then `fine_steps` on each side of the best between its neighbours.
+    pub shift_steps: usize,
+    pub fine_steps: usize,
+    /// Width of the voting window on log(scale): the relative length error a pair may have.
+    pub log_scale_window: f64,
+    /// Pairs shorter than this share of the median map-pair length do not vote (their length
+    /// is dominated by noise). Relative, so that it holds at any range and map scale.
+    pub min_pair_fraction: f64,
+    /// Gauss–Newton refinement rounds on the agreeing pairs.
+    pub refine_iterations: usize,
+    pub seed: u64,
+}
+
+impl Default for ScaleShiftParams {
+    fn default() -> Self {
+        Self {
+            local_neighbours: 10,
+            max_local_pairs: 4000,
+            global_pairs: 4000,
+            shift_range: 0.6,
+            shift_steps: 9,
+            fine_steps: 3,
+            log_scale_window: 0.06,
+            min_pair_fraction: 0.05,
+            refine_iterations: 5,
+            seed: 0x5eed,
+        }
+    }
+}
+
+/// One voting pair: its rays' dot products, prior coordinates and map length.
+struct PairTerms {
+    ii: f32,
+    ij: f32,
+    jj: f32,
+    xi: f32,
+    xj: f32,
+    log_map_len2: f32,
+}
+
+/// Depth up to scale under candidate shift `t`: x + t, or 1/(x + t) in disparity space;
+/// `None` where that is not a positive depth.
+fn unit_depth(space: PriorSpace, x: f32, t: f32) -> Option<f32> {
+    let y = x + t;
+    match space {
+        PriorSpace::Depth => (y > 0.0).then_some(y),
+        PriorSpace::Disparity => (y > 0.0).then(|| 1.0 / y),
+    }
+}
+
+/// Estimates the prior's affine map in `space` from putative correspondences, robust to a large
+/// share of outliers: for each candidate shift t of the prior coordinate, every voting pair
+/// (i, j) proposes the scale ‖q_i − q_j‖ / ‖u_i·r_i − u_j·r_j‖ (r = the pixel's ray with z = 1,
+/// u = x + t, or 1/(x + t) in disparity space); the shift whose proposals agree most (densest
+/// window of log-scale) wins, then Gauss–Newton fits the map on the agreeing pairs.
+///
+/// `rays[i]` is pixel i's ray scaled to z = 1, `prior[i]` its prior coordinate, `local_pairs`
+/// the local pairs (e.g. image-space kNN). Returns `None` when nothing agrees.
+pub fn estimate_scale_shift(
+    rays: &[Vector3<f64>],
+    prior: &[f64],
+    map: &[Point3<f64>],
+    local_pairs: &[(u32, u32)],
+    space: PriorSpace,
+    params: &ScaleShiftParams,
+) -> Option<ScaleShift> {
+    let n = rays.len().min(prior.len()).min(map.len());
+    if n < 3 {
+        return None;
+    }
+    let mut pairs: Vec<(u32, u32)> =
+        local_pairs.iter().copied().filter(|&(i, j)| i != j && (i as usize) < n && (j as usize) < n).collect();
+    let mut rng = SplitMix64(params.seed);
+    for _ in 0..params.global_pairs {
+        let i = rng.below(n) as u32;
+        let j = rng.below(n) as u32;
+        if i != j {
+            pairs.push((i, j));
+        }
+    }
+    let map_len: Vec<f64> = pairs.iter().map(|&(i, j)| (map[i as usize] - map[j as usize]).norm()).collect();
+    let median_x = median(prior[..n].iter().copied().filter(|d| d.is_finite() && *d > 0.0).collect())?;
+    let min_len = params.min_pair_fraction * median(map_len.clone()).unwrap_or(0.0);
+    let terms: Vec<PairTerms> = pairs
+        .iter()
+        .zip(&map_len)
+        .filter(|(_, &len)| len >= min_len && len > 0.0)
+        .map(|(&(i, j), &len)| {
+            let (ri, rj) = (rays[i as usize], rays[j as usize]);
+            PairTerms {
+                ii: ri.norm_squared() as f32,
+                ij: ri.dot(&rj) as f32,
+                jj: rj.norm_squared() as f32,
+                xi: prior[i as usize] as f32,
+                xj: prior[j as usize] as f32,
+                log_map_len2: (len * len).ln() as f32,
+            }
+        })
+        .collect();
+
+    let mut votes = ScaleVotes::new(params.log_scale_window);
+    let mut vote = |t: f64| -> Option<Vote> {
+        votes.clear();
+        let tf = t as f32;
+        for c in &terms {
+            let (Some(ui), Some(uj)) = (unit_depth(space, c.xi, tf), unit_depth(space, c.xj, tf)) else { continue };
+            let img_len2 = ui * ui * c.ii - 2.0 * ui * uj * c.ij + uj * uj * c.jj;
+            if img_len2 > 1e-18 {
+                // log(scale) = ½·(log ‖q_i − q_j‖² − log ‖o_i − o_j‖²)
+                votes.add(0.5 * (c.log_map_len2 - img_len2.ln()) as f64);
+            }
+        }
+        votes.densest().map(|(count, log_scale)| Vote { count, scale: log_scale.exp(), shift: t })
+    };
+    let best = search_shift(&mut vote, params.shift_range * median_x, params)?;
+    // depth = s·(x + t) = s·x + s·t; 1/depth = (x + t)/s.
+    let mut estimate = match space {
+        PriorSpace::Depth => ScaleShift { scale: best.scale, shift: best.scale * best.shift, support: best.count, space },
+        PriorSpace::Disparity => {
+            ScaleShift { scale: 1.0 / best.scale, shift: best.shift / best.scale, support: best.count, space }
+        }
+    };
+    let prior_pairs = PriorPairs { rays, prior, pairs: &pairs, map_len: &map_len, min_len };
+    refine_scale_shift(&prior_pairs, params, &mut estimate);
+    (estimate.scale.is_finite() && estimate.scale > 0.0 && estimate.shift.is_finite()).then_some(estimate)
+}
+
+/// The densest vote at one candidate shift.
+#[derive(Clone, Copy)]
+struct Vote {
+    count: usize,
+    scale: f64,
+    shift: f64,
+}
+
+/// Coarse-to-fine search over the shift in ±`range`: a coarse grid, then a fine one around its
+/// best; the shift with the most votes wins.
+fn search_shift(vote: &mut impl FnMut(f64) -> Option<Vote>, range: f64, params: &ScaleShiftParams) -> Option<Vote> {
+    let steps = params.shift_steps.max(1);
+    let step = if steps > 1 { 2.0 * range / (steps - 1) as f64 } else { 0.0 };
+    let better = |a: Option<Vote>, b: Option<Vote>| match (a, b) {
+        (Some(x), Some(y)) => Some(if y.count > x.count { y } else { x }),
+        (x, y) => x.or(y),
+    };
+    let mut best = None;
+    for k in 0..steps {
+        best = better(best, vote(-range + step * k as f64));
+    }
+    if let Some(centre) = best.map(|b| b.shift) {
+        for k in 1..=params.fine_steps {
+            let offset = step * k as f64 / (params.fine_steps + 1) as f64;
+            best = better(best, vote(centre - offset));
+            best = better(best, vote(centre + offset));
+        }
+    }
+    best
+}
+
+/// The voting pairs with what the refinement needs of them.
+struct PriorPairs<'a> {
+    rays: &'a [Vector3<f64>],
+    prior: &'a [f64],
+    pairs: &'a [(u32, u32)],
+    map_len: &'a [f64],
+    min_len: f64,
+}
+
+/// Gauss–Newton on (scale, shift) minimising Σ (‖z_i r_i − z_j r_j‖ − ‖q_i − q_j‖)² over the
+/// pairs that agree with the current estimate (relative residual below the vote window).
+fn refine_scale_shift(data: &PriorPairs, params: &ScaleShiftParams, est: &mut ScaleShift) {
+    let tol = params.log_scale_window;
+    for _ in 0..params.refine_iterations {
+        let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut used = 0usize;
+        for (p, &(i, j)) in data.pairs.iter().enumerate() {
+            let (i, j) = (i as usize, j as usize);
+            let len_map = data.map_len[p];
+            if len_map < data.min_len || len_map <= 0.0 {
+                continue;
+            }
+            let (xi, xj) = (data.prior[i], data.prior[j]);
+            let (zi, zj) = (est.depth(xi), est.depth(xj));
+            if !(zi > 0.0 && zj > 0.0 && zi.is_finite() && zj.is_finite()) {
+                continue;
+            }
+            let (ri, rj) = (data.rays[i], data.rays[j]);
+            let diff = ri * zi - rj * zj;
+            let len = diff.norm();
+            if len < 1e-9 {
+                continue;
+            }
+            let r = len - len_map;
+            if r.abs() > tol * len_map {
+                continue;
+            }
+            let ((si, ti), (sj, tj)) = (est.gradient(xi), est.gradient(xj));
+            let js = diff.dot(&(ri * si - rj * sj)) / len;
+            let jt = diff.dot(&(ri * ti - rj * tj)) / len;
+            a11 += js * js;
+            a12 += js * jt;
+            a22 += jt * jt;
+            b1 += js * r;
+            b2 += jt * r;
+            used += 1;
+        }
+        let det = a11 * a22 - a12 * a12;
+        if used < 3 || !(det.abs() > 1e-12 * (a11 * a22).abs().max(1e-300)) {
+            break;
+        }
+        let ds = (a22 * b1 - a12 * b2) / det;
+        let dt = (a11 * b2 - a12 * b1) / det;
+        let before = *est;
+        est.scale -= ds;
+        est.shift -= dt;
+        est.support = used;
+        if !(est.scale > 0.0) || !est.shift.is_finite() {
+            *est = before;
+            break;
+        }
+        if ds.abs() < 1e-6 * est.scale.abs() && dt.abs() < 1e-6 * est.shift.abs().max(1e-6) {
+            break;
+        }
+    }
+}
+
+/// Votes on log(scale) in a fine histogram; the densest window of the vote width wins.
+pub(crate) struct ScaleVotes {
+    bins: Vec<u32>,
+    /// Bins per vote window.
+    window: usize,
+    bin_width: f64,
+}
+
+impl ScaleVotes {
+    /// log-scales outside ±`LOG_RANGE` (a factor of ~3000) do not vote.
+    const LOG_RANGE: f64 = 8.0;
+    const BINS_PER_WINDOW: usize = 4;
+
+    pub(crate) fn new(window: f64) -> Self {
+        let bin_width = window.max(1e-4) / Self::BINS_PER_WINDOW as f64;
+        let n = (2.0 * Self::LOG_RANGE / bin_width).ceil() as usize + 1;
+        Self { bins: vec![0; n], window: Self::BINS_PER_WINDOW, bin_width }
+    }
+
+    fn clear(&mut self) {
+        self.bins.fill(0);
+    }
+
+    pub(crate) fn add(&mut self, log_scale: f64) {
+        let k = (log_scale + Self::LOG_RANGE) / self.bin_width;
+        if k >= 0.0 && (k as usize) < self.bins.len() {
+            self.bins[k as usize] += 1;
+        }
+    }
+
+    /// (votes, centre log-scale) of the densest window.
+    pub(crate) fn densest(&self) -> Option<(usize, f64)> {
+        let mut count: u32 = self.bins[..self.window.min(self.bins.len())].iter().sum();
+        let (mut best, mut best_start) = (count, 0);
+        for start in 1..=self.bins.len().saturating_sub(self.window) {
+            count = count + self.bins[start + self.window - 1] - self.bins[start - 1];
+            if count > best {
+                best = count;
+                best_start = start;
+            }
+        }
+        (best > 0)
+            .then(|| (best as usize, (best_start as f64 + self.window as f64 / 2.0) * self.bin_width - Self::LOG_RANGE))
+    }
+}
+
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(*m)
+}
+
+/// A tiny deterministic generator for pair sampling (SplitMix64).
+pub(crate) struct SplitMix64(pub(crate) u64);
+
+impl SplitMix64 {
+    pub(crate) fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    pub(crate) fn below(&mut self, n: usize) -> usize {
+        ((self.next() >> 11) as f64 / (1u64 << 53) as f64 * n as f64) as usize % n.max(1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+
+    fn scene(seed: u64, n: usize) -> (Vec<Point3<f64>>, Vec<Point3<f64>>) {
+        let mut rng = SplitMix64(seed);
+        let mut u = || rng.next() as f64 / u64::MAX as f64;
+        let cam: Vec<_> = (0..n).map(|_| Point3::new(u() * 4.0 - 2.0, u() * 3.0 - 1.5, 1.0 + u() * 4.0)).collect();
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.3, -0.2, 1.0),
+            UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
+        );
+        let map = cam.iter().map(|p| pose.transform_point(p)).collect();
+        (cam, map)
+    }
+
+    /// 60 % of the prior values replaced by random ones.
+    fn corrupt(prior: &mut [f64], lo: f64, hi: f64) {
+        let mut rng = SplitMix64(99);
+        let count = prior.len() * 3 / 5;
+        for d in prior.iter_mut().take(count) {
+            *d = lo + (hi - lo) * rng.next() as f64 / u64::MAX as f64;
+        }
+    }
+
+    #[test]
+    fn scale_and_shift_are_recovered_with_outliers() {
+        // Prior coordinate d = (z − t)/s.
+        let (s_true, t_true) = (1.7, 0.45);
+        let (cam, map) = scene(5, 300);
+        let rays: Vec<_> = cam.iter().map(|p| p.coords / p.z).collect();
+        let mut prior: Vec<_> = cam.iter().map(|p| (p.z - t_true) / s_true).collect();
+        corrupt(&mut prior, 0.2, 3.2);
+        let est = estimate_scale_shift(&rays, &prior, &map, &[], PriorSpace::Depth, &ScaleShiftParams::default())
+            .unwrap();
+        assert!((est.scale - s_true).abs() < 0.02 * s_true, "{est:?}");
+        assert!((est.shift - t_true).abs() < 0.03, "{est:?}");
+    }
+
+    #[test]
+    fn affine_disparity_is_aligned_in_inverse_depth() {
+        // An affine-invariant disparity: prior = a/z + b with a large shift b (40 % of the median).
+        let (a_true, b_true) = (3.0, 0.4);
+        let (cam, map) = scene(7, 300);
+        let rays: Vec<_> = cam.iter().map(|p| p.coords / p.z).collect();
+        let mut prior: Vec<_> = cam.iter().map(|p| a_true / p.z + b_true).collect();
+        corrupt(&mut prior, 0.9, 3.4);
+        let est = estimate_scale_shift(&rays, &prior, &map, &[], PriorSpace::Disparity, &ScaleShiftParams::default())
+            .unwrap();
+        // 1/z = (prior − b)/a.
+        assert!((est.scale - 1.0 / a_true).abs() < 0.02 / a_true, "{est:?}");
+        assert!((est.shift + b_true / a_true).abs() < 0.02, "{est:?}");
+        for p in cam.iter().skip(200).take(20) {
+            let z = est.depth(a_true / p.z + b_true);
+            assert!((z - p.z).abs() < 0.03 * p.z, "{z} vs {}", p.z);
+        }
+    }
+
+    #[test]
+    fn alignment_is_blind_to_the_map_units() {
+        // The same scene in millimetres: the pair-length filter is relative, so the same pairs vote.
+        let (cam, map) = scene(11, 200);
+        let rays: Vec<_> = cam.iter().map(|p| p.coords / p.z).collect();
+        let prior: Vec<_> = cam.iter().map(|p| p.z / 2.0).collect();
+        let p = ScaleShiftParams::default();
+        let metres = estimate_scale_shift(&rays, &prior, &map, &[], PriorSpace::Depth, &p).unwrap();
+        let mm: Vec<_> = map.iter().map(|q| Point3::from(q.coords * 1000.0)).collect();
+        let millimetres = estimate_scale_shift(&rays, &prior, &mm, &[], PriorSpace::Depth, &p).unwrap();
+        assert!((millimetres.scale / metres.scale - 1000.0).abs() < 1.0, "{metres:?} {millimetres:?}");
+    }
+
+    #[test]
+    fn scale_votes_find_the_mode() {
+        let mut votes = ScaleVotes::new(0.06);
+        for v in [0.0, 0.5, 0.51, 0.52, 0.53, -2.0, 9.0] {
+            votes.add(v);
+        }
+        let (count, centre) = votes.densest().unwrap();
+        assert_eq!(count, 4);
+        assert!((centre - 0.515).abs() < 0.03, "{centre}");
+    }
+}

@@ -1,0 +1,91 @@
+//! The last refinement of a pose over every correspondence of the frame that agrees with it,
+//! with a tolerance in pixels taken from the frame's own residuals: rejection (or a budgeted
+//! RANSAC) found the pose on a subset; the correspondences it left out but that fit sharpen it.
+
+use serde::{Deserialize, Serialize};
+
+use crate::frame::Correspondence;
+use crate::geometry::Intrinsics;
+use crate::pnp::{pose_covariance, refine_pose, PnpSolution, RefineOptions, RobustLoss};
+
+/// The last refinement over every correspondence that agrees with the pose.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FinalRefine {
+    pub enabled: bool,
+    /// A correspondence joins when its reprojection error is below `noise_multiple`·σ̂, where σ̂
+    /// is the pixel noise estimated from the pose's PnP inliers (median residual / 1.1774, the
+    /// Rayleigh median), clamped to [`min_threshold_px`, `max_threshold_px`]. In pixels, so it
+    /// holds at any depth range; adaptive, so it follows the matcher's accuracy.
+    pub noise_multiple: f64,
+    pub min_threshold_px: f64,
+    pub max_threshold_px: f64,
+    pub loss: RobustLoss,
+    pub loss_scale_px: f64,
+    pub max_iterations: usize,
+}
+
+impl Default for FinalRefine {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            noise_multiple: 3.0,
+            min_threshold_px: 1.0,
+            max_threshold_px: 8.0,
+            loss: RobustLoss::Trivial,
+            loss_scale_px: 4.0,
+            max_iterations: 20,
+        }
+    }
+}
+
+/// The Rayleigh distribution's median over its σ: √(2 ln 2).
+const RAYLEIGH_MEDIAN: f64 = 1.177_410_022_515_474_7;
+
+impl FinalRefine {
+    /// Refines `solution` in place on the `correspondences` within the adaptive tolerance of
+    /// its pose; `inlier_threshold_px` is PnP's, which defines the inliers σ̂ is measured on.
+    /// Leaves it unchanged when fewer than `min_count` agree or the refinement fails.
+    pub fn apply(
+        &self,
+        k: &Intrinsics,
+        correspondences: &[Correspondence],
+        inlier_threshold_px: f64,
+        min_count: usize,
+        solution: &mut PnpSolution,
+    ) {
+        let to_cam = solution.pose.inverse();
+        let residuals: Vec<f64> = correspondences
+            .iter()
+            .map(|c| {
+                let x = to_cam.transform_point(&c.point);
+                k.project(&x).map_or(f64::INFINITY, |px| (px - c.pixel).norm())
+            })
+            .collect();
+        let mut inlier_residuals: Vec<f64> =
+            residuals.iter().copied().filter(|r| *r < inlier_threshold_px).collect();
+        if inlier_residuals.len() < min_count {
+            return;
+        }
+        let mid = inlier_residuals.len() / 2;
+        let (_, median, _) = inlier_residuals.select_nth_unstable_by(mid, f64::total_cmp);
+        let sigma = *median / RAYLEIGH_MEDIAN;
+        let threshold = (self.noise_multiple * sigma).clamp(self.min_threshold_px, self.max_threshold_px);
+        let agreeing: Vec<&Correspondence> =
+            correspondences.iter().zip(&residuals).filter(|(_, &r)| r < threshold).map(|(c, _)| c).collect();
+        if agreeing.len() < min_count {
+            return;
+        }
+        let pixels: Vec<_> = agreeing.iter().map(|c| c.pixel).collect();
+        let points: Vec<_> = agreeing.iter().map(|c| c.point).collect();
+        let options =
+            RefineOptions { max_iterations: self.max_iterations, loss: self.loss, loss_scale_px: self.loss_scale_px };
+        if let Ok(refined) = refine_pose(k, &pixels, &points, &solution.pose, &options) {
+            if let Ok(cov) = pose_covariance(k, &pixels, &points, &refined.pose) {
+                solution.covariance = cov;
+            }
+            solution.pose = refined.pose;
+            solution.rmse_px = refined.rmse_px;
+        }
+    }
+}
