@@ -170,14 +170,25 @@ fn run(cli: Cli) -> Result<()> {
                 bar.set_message(format!("{:.2} ms", loc.timings.total_ms));
                 if verbose {
                     let line = format!(
-                        "frame {}: {} kept, {} inliers, {:.2} ms (geometry {:.2}, reject {:.2}, pnp {:.2}){}",
+                        "frame {}: {} kept, {} inliers, {:.2} ms (fast path {:.2}, geometry {:.2}, reject {:.2}, \
+                         pnp {:.2}){}{}{}",
                         loc.stamp,
                         loc.kept.len(),
                         loc.num_inliers,
                         loc.timings.total_ms,
+                        loc.timings.fast_path_ms,
                         loc.timings.geometry_ms,
                         loc.timings.reject_ms,
                         loc.timings.pnp_ms,
+                        match (loc.fast_path, &loc.fast_path_check) {
+                            (true, _) => ", settled by the fast path".to_string(),
+                            (false, Some(c)) => format!(
+                                ", fast path unsettled (inliers {:.2}, cells {:.2})",
+                                c.inlier_ratio, c.cell_share
+                            ),
+                            _ => String::new(),
+                        },
+                        loc.prior_quality.map(|q| format!(", prior quality {q:.2}")).unwrap_or_default(),
                         loc.failure.as_ref().map(|f| format!(" — no pose: {f}")).unwrap_or_default()
                     );
                     if bar.is_hidden() {

@@ -19,14 +19,16 @@ pub struct CascadeParams {
     /// The pose's inliers must be at least this share of the correspondences: a majority-like
     /// support that no wrong pose explaining a displaced patch of matches reaches …
     pub min_inlier_ratio: f64,
-    /// … and cover at least this share of the image cells (of `pnp.coverage_cell_px`, or 32 px)
-    /// that hold any correspondence, so that it is spread over the view.
+    /// … and cover at least this share of the image cells that hold any correspondence, so that
+    /// it is spread over the view; cells are a `grid_columns`-wide grid over the image (their
+    /// size follows the resolution).
     pub min_cell_share: f64,
+    pub grid_columns: usize,
 }
 
 impl Default for CascadeParams {
     fn default() -> Self {
-        Self { enabled: true, max_iterations: 400, min_inlier_ratio: 0.3, min_cell_share: 0.5 }
+        Self { enabled: true, max_iterations: 400, min_inlier_ratio: 0.3, min_cell_share: 0.5, grid_columns: 16 }
     }
 }
 
@@ -55,7 +57,7 @@ impl CascadeParams {
         else {
             return Err(FastPathCheck::default());
         };
-        let cell_px = if pnp.coverage_cell_px > 0.0 { pnp.coverage_cell_px } else { 32.0 };
+        let cell_px = frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64;
         let all = cells_covered(pixels.iter(), cell_px);
         let supported = cells_covered(pixels.iter().zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p), cell_px);
         let check = FastPathCheck {

@@ -108,8 +108,10 @@ pub struct Localization {
     /// in view at the returned pose where the rendered map agrees with the prior (up to the
     /// prior's unknown affine map), in [0, 1]. `None` without a prior, a map or a pose.
     pub prior_quality: Option<f64>,
-    /// Whether the cascade's budgeted LO-RANSAC settled the frame (no rejection ran).
+    /// Whether the cascade's budgeted LO-RANSAC settled the frame (no rejection ran), and what
+    /// it measured when it did not.
     pub fast_path: bool,
+    pub fast_path_check: Option<FastPathCheck>,
     pub timings: StageTimings,
     pub failure: Option<Failure>,
 }
@@ -176,6 +178,7 @@ impl Localizer {
             scale_shift: None,
             prior_quality: None,
             fast_path: false,
+            fast_path_check: None,
             timings: StageTimings::default(),
             failure: None,
         };
@@ -200,7 +203,13 @@ impl Localizer {
         let t = Instant::now();
         let settled = p.cascade.settle(frame, &p.pnp, p.seed);
         out.timings.fast_path_ms = ms_since(t);
-        let Ok(mut solution) = settled else { return false };
+        let mut solution = match settled {
+            Ok(solution) => solution,
+            Err(check) => {
+                out.fast_path_check = Some(check);
+                return false;
+            }
+        };
         if p.final_refine.enabled {
             self.refine_on_all(frame, &mut solution);
         }

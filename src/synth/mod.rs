@@ -180,7 +180,7 @@ impl SynthConfig {
     /// three quarters moved patch-wise), and "easy" (400, ~83 %, as a good matcher on an RGB-D
     /// sensor gives). Modifiers ([`PRESET_MODIFIERS`]):
     /// * `close`: an RGB-D sensor at close range (640×480, f = 615 px, surfaces 0.3–1.5 m away
-    ///   in a 3 × 3 m room, depth-sensor noise on the map);
+    ///   in a 3 × 3 m room, the map and matches with a near sensor's millimetre noise);
     /// * `hd`: 1280×720, f = 900 px, an 8 × 6 m room; `wide`: 640×480, f = 400 px (~77° FOV);
     /// * `small-map`: a sparse map (voxels of 8 cm: a few thousand points); `large-map`: a dense
     ///   one (voxels of 1 cm);
@@ -217,7 +217,8 @@ impl SynthConfig {
                 room_size: [3.0, 3.0, 2.5],
                 path_radius_m: 0.85,
                 camera_height_m: 1.1,
-                cloud_noise_m: 0.006,
+                cloud_noise_m: 0.003,
+                map_noise_m: 0.004,
                 map_density: 300.0,
                 map_voxel_m: 0.03,
                 ..resize(self, 640, 480, 615.0)
