@@ -49,7 +49,7 @@ impl Default for VerifyParams {
             min_iterations: 1000,
             accept: 0.7,
             min_view: 0.25,
-            settle_checks: 3,
+            settle_checks: 2,
             max_iterations: 10_000,
             min_trust: 0.5,
             max_map_points: 10_000,

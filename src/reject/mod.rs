@@ -179,8 +179,10 @@ pub struct SpectralParams {
     pub metric: ConsistencyMetric,
     /// σ_d of eq. (7), on the difference of |cos|.
     pub sigma_d: f64,
-    /// Distance metric tolerance: σ_abs + σ_rel·length (metres).
-    pub sigma_abs: f64,
+    /// Distance metric tolerance: σ_abs + σ_rel·length, where σ_abs = `sigma_spread` × the
+    /// frame's map spread (the median distance of its map points to their centroid), so that
+    /// it follows the scene's scale: a close-range frame gets a tight tolerance, a hall a loose one.
+    pub sigma_spread: f64,
     pub sigma_rel: f64,
     /// Keep this share of the correspondences (best scores first) …
     pub keep_ratio: f64,
@@ -200,7 +202,7 @@ impl Default for SpectralParams {
         Self {
             metric: ConsistencyMetric::Distance,
             sigma_d: 0.2,
-            sigma_abs: 0.05,
+            sigma_spread: 0.05,
             sigma_rel: 0.1,
             keep_ratio: 0.25,
             min_keep: 30,
@@ -210,6 +212,17 @@ impl Default for SpectralParams {
             recentre_passes: 1,
         }
     }
+}
+
+/// The median distance of `points` to their centroid (0 for none): the scale of a frame's map.
+fn spread(points: &[Point3<f64>]) -> f64 {
+    let c = crate::geometry::centroid(points);
+    let mut d: Vec<f64> = points.iter().map(|p| (p - c).norm()).collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    let mid = d.len() / 2;
+    *d.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// Spectral matching (Leordeanu & Hebert 2005) on the consistency matrix Θ: inliers form the
@@ -327,7 +340,7 @@ impl Rejector for SpectralRejector {
             ConsistencyMetric::Distance => distance_consistency(
                 &self.image,
                 &self.map,
-                self.params.sigma_abs,
+                self.params.sigma_spread * spread(&self.map),
                 self.params.sigma_rel,
                 &mut self.theta,
             ),
