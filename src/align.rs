@@ -94,19 +94,18 @@ impl Default for ScaleShiftParams {
     }
 }
 
-/// One voting pair: its rays' dot products, prior coordinates and map length.
+/// One voting pair: its rays, prior coordinates and map length.
 struct PairTerms {
-    ii: f32,
-    ij: f32,
-    jj: f32,
-    xi: f32,
-    xj: f32,
-    log_map_len2: f32,
+    ri: Vector3<f64>,
+    rj: Vector3<f64>,
+    xi: f64,
+    xj: f64,
+    log_map_len2: f64,
 }
 
 /// Depth up to scale under candidate shift `t`: x + t, or 1/(x + t) in disparity space;
 /// `None` where that is not a positive depth.
-fn unit_depth(space: PriorSpace, x: f32, t: f32) -> Option<f32> {
+fn unit_depth(space: PriorSpace, x: f64, t: f64) -> Option<f64> {
     let y = x + t;
     match space {
         PriorSpace::Depth => (y > 0.0).then_some(y),
@@ -151,29 +150,26 @@ pub fn estimate_scale_shift(
         .iter()
         .zip(&map_len)
         .filter(|(_, &len)| len >= min_len && len > 0.0)
-        .map(|(&(i, j), &len)| {
-            let (ri, rj) = (rays[i as usize], rays[j as usize]);
-            PairTerms {
-                ii: ri.norm_squared() as f32,
-                ij: ri.dot(&rj) as f32,
-                jj: rj.norm_squared() as f32,
-                xi: prior[i as usize] as f32,
-                xj: prior[j as usize] as f32,
-                log_map_len2: (len * len).ln() as f32,
-            }
+        .map(|(&(i, j), &len)| PairTerms {
+            ri: rays[i as usize],
+            rj: rays[j as usize],
+            xi: prior[i as usize],
+            xj: prior[j as usize],
+            log_map_len2: (len * len).ln(),
         })
         .collect();
 
     let mut votes = ScaleVotes::new(params.log_scale_window);
     let mut vote = |t: f64| -> Option<Vote> {
         votes.clear();
-        let tf = t as f32;
         for c in &terms {
-            let (Some(ui), Some(uj)) = (unit_depth(space, c.xi, tf), unit_depth(space, c.xj, tf)) else { continue };
-            let img_len2 = ui * ui * c.ii - 2.0 * ui * uj * c.ij + uj * uj * c.jj;
+            let (Some(ui), Some(uj)) = (unit_depth(space, c.xi, t), unit_depth(space, c.xj, t)) else { continue };
+            // The difference of the two lifted points, not of their squared norms: neighbouring
+            // pixels have nearly equal rays, and expanding the square would cancel digits.
+            let img_len2 = (c.ri * ui - c.rj * uj).norm_squared();
             if img_len2 > 1e-18 {
                 // log(scale) = ½·(log ‖q_i − q_j‖² − log ‖o_i − o_j‖²)
-                votes.add(0.5 * (c.log_map_len2 - img_len2.ln()) as f64);
+                votes.add(0.5 * (c.log_map_len2 - img_len2.ln()));
             }
         }
         votes.densest().map(|(count, log_scale)| Vote { count, scale: log_scale.exp(), shift: t })

@@ -1,6 +1,8 @@
-//! The learned rejector in Rust: inputs built here equal the ones the model was checked with,
-//! and ONNX Runtime's scores equal PyTorch's (≤ 1e-4) on them — the parity of training and
-//! inference. Needs ONNX Runtime (`make ort`); skipped without it, a failure in CI.
+//! The learned rejector in Rust: ONNX Runtime's scores equal PyTorch's (≤ 1e-4) on the inputs
+//! the model was checked with (`models/parity/sample`, made with the training code), and the
+//! inputs Rust builds for that frame are the recorded ones (`models/parity/rust_inputs`: any
+//! change to them is deliberate and re-recorded with `angle-i2p export bags/synth-hard`, first
+//! frame). Needs ONNX Runtime (`make ort`); skipped without it, a failure in CI.
 
 use std::path::{Path, PathBuf};
 
@@ -28,25 +30,29 @@ fn u32s(dir: &Path, name: &str) -> (Vec<u32>, Vec<usize>) {
     (v.into_iter().map(|i| i as u32).collect(), shape)
 }
 
-/// The stored sample: `angle-i2p export bags/synth-hard`, first frame.
+/// The inputs PyTorch scored (`models/parity/sample`).
 fn stored_inputs() -> NetworkInputs {
-    let dir = sample_dir();
-    let flat = f32s(&dir, "features");
-    let (local_index, local_shape) = u32s(&dir, "local_index");
-    let (global_index, _) = u32s(&dir, "global_index");
+    inputs_in(&sample_dir())
+}
+
+/// Network inputs stored as `angle-i2p export` writes them, in `dir`.
+fn inputs_in(dir: &Path) -> NetworkInputs {
+    let flat = f32s(dir, "features");
+    let (local_index, local_shape) = u32s(dir, "local_index");
+    let (global_index, _) = u32s(dir, "global_index");
     NetworkInputs {
         features: flat.chunks_exact(24).map(|c| c.try_into().unwrap()).collect(),
         graphs: Graphs {
             local_index,
             nodes: local_shape[0],
             neighbours: local_shape[1],
-            local_theta: f32s(&dir, "local_theta"),
+            local_theta: f32s(dir, "local_theta"),
             global_index,
-            global_theta: f32s(&dir, "global_theta"),
-            cross_theta: f32s(&dir, "cross_theta"),
+            global_theta: f32s(dir, "global_theta"),
+            cross_theta: f32s(dir, "cross_theta"),
         },
-        spectral_scores: f32s(&dir, "spectral"),
-        matcher_scores: f32s(&dir, "correspondences").chunks_exact(6).map(|c| c[5]).collect(),
+        spectral_scores: f32s(dir, "spectral"),
+        matcher_scores: f32s(dir, "correspondences").chunks_exact(6).map(|c| c[5]).collect(),
     }
 }
 
@@ -65,7 +71,7 @@ fn rust_inputs_are_reproduced_exactly() {
     let map = IndexedMap::new(bag.map.unwrap().points);
     let mut spectral = SpectralRejector::new(params.network.keypoint_spectral(params.spectral.clone()));
     let now = build_inputs(&geometry, Some(&map), &mut spectral, &params.network);
-    let stored = stored_inputs();
+    let stored = inputs_in(&manifest().join("models/parity/rust_inputs"));
     let flat: Vec<f32> = now.features.iter().flatten().copied().collect();
     let stored_flat: Vec<f32> = stored.features.iter().flatten().copied().collect();
     assert_close(&flat, &stored_flat, 1e-6, "features");

@@ -5,6 +5,7 @@ use angle_i2p::app;
 use angle_i2p::bag::read_frames;
 use angle_i2p::eval::{inlier_mask, inlier_ratio, pose_errors, summarize, FrameMetrics};
 use angle_i2p::frame::{Frame, MapCloud};
+use angle_i2p::geometry::DepthKind;
 use angle_i2p::params::Params;
 use angle_i2p::pipeline::{Failure, Localizer, Method};
 use angle_i2p::synth::{generate, SynthConfig};
@@ -17,7 +18,12 @@ fn localize_all(frames: &[Frame], method: Method) -> (Vec<FrameMetrics>, f64) {
 }
 
 fn localize_all_with_map(frames: &[Frame], map: Option<&MapCloud>, method: Method) -> (Vec<FrameMetrics>, f64) {
-    let mut localizer = Localizer::new(Params { method, ..Params::default() });
+    localize_params(frames, map, Params { method, ..Params::default() })
+}
+
+fn localize_params(frames: &[Frame], map: Option<&MapCloud>, params: Params) -> (Vec<FrameMetrics>, f64) {
+    let method = params.method;
+    let mut localizer = Localizer::new(params);
     if let Some(e) = localizer.setup_error() {
         panic!("{}: {e}", method.name());
     }
@@ -103,12 +109,17 @@ fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
 
 /// Localizes every frame of a shared real bag; `None` (and a printed reason) when it is absent.
 fn real_bag_summary(name: &str, method: Method) -> Option<(angle_i2p::eval::Summary, f64)> {
+    real_bag_summary_with(name, Params { method, ..Params::default() })
+}
+
+fn real_bag_summary_with(name: &str, params: Params) -> Option<(angle_i2p::eval::Summary, f64)> {
     let Some(bag) = shared_bag(name) else {
         eprintln!("SKIP: ../shared/data/{name} is absent");
         return None;
     };
+    let method = params.method;
     let input = read_frames(&bag, &Params::default().topics).unwrap();
-    let (rows, raw_ir) = localize_all_with_map(&input.frames, input.map.as_ref(), method);
+    let (rows, raw_ir) = localize_params(&input.frames, input.map.as_ref(), params);
     assert!((app::raw_inlier_ratio(&input).ir - raw_ir).abs() < 1e-9);
     let s = summarize(&rows);
     eprintln!("{name} {}: {s:?} (raw IR {raw_ir:.2})", method.name());
@@ -125,12 +136,13 @@ fn consistency_rejection_on_real_hard_val() {
     assert!(s.ir >= 2.0 * raw_ir, "IR {:.1} % vs raw {raw_ir:.1} %", s.ir);
 }
 
-/// Accuracy on the easy tier: MRE ≤ 0.62° and MTE ≤ 0.017 m on `redkitchen-sift-val`.
+/// Accuracy on the easy tier (issue #9): every frame registered, MRE and MTE no worse than
+/// PoseLib's LO-RANSAC on `redkitchen-sift-val` (0.684°, 0.0192 m in its baseline.json).
 #[test]
 fn consistency_accuracy_on_real_sift_val() {
     let Some((s, _)) = real_bag_summary("redkitchen-sift-val", Method::Consistency) else { return };
     assert_eq!(s.rr, 100.0);
-    assert!(s.mre.unwrap() <= 0.62 && s.mte.unwrap() <= 0.017, "{s:?}");
+    assert!(s.mre.unwrap() <= 0.684 && s.mte.unwrap() <= 0.0192, "{s:?}");
 }
 
 /// The learned rejector's bars on real data (issue #3): on `redkitchen-extreme-val` RR within 5
@@ -147,4 +159,46 @@ fn learned_rejection_on_real_extreme_and_hard_val() {
     let Some((s, raw_ir)) = real_bag_summary("redkitchen-hard-val", Method::AngleI2p) else { return };
     assert!(s.rr >= 95.0, "hard RR {:.1} %", s.rr);
     assert!(s.ir >= 2.0 * raw_ir, "hard IR {:.1} % vs raw {raw_ir:.1} %", s.ir);
+}
+
+/// Realistic priors (issue #9): with the harsh metric-like prior and with affine-invariant
+/// disparity (read as `depth_kind: disparity`), the default method registers every hard-tier
+/// frame and at least PoseLib + 15 points (25 % + 15) of the extreme tier's.
+#[test]
+fn learned_rejection_with_realistic_priors() {
+    if onnx_runtime().is_none() {
+        return;
+    }
+    let disparity = Params { depth_kind: DepthKind::Disparity, ..Params::default() };
+    for (name, params) in [
+        ("redkitchen-hard-val-harsh", Params::default()),
+        ("redkitchen-hard-val-disparity", disparity.clone()),
+        ("redkitchen-extreme-val-harsh", Params::default()),
+        ("redkitchen-extreme-val-disparity", disparity),
+    ] {
+        let Some((s, _)) = real_bag_summary_with(name, params) else { return };
+        let bar = if name.contains("hard") { 100.0 } else { 40.0 };
+        assert!(s.rr >= bar, "{name}: RR {:.1} % < {bar}", s.rr);
+    }
+}
+
+/// The cascade (issue #9): frames with a clear majority of good matches end on the fast path
+/// (no rejection), hard frames go on to the rejector; both are localized.
+#[test]
+fn easy_frames_end_on_the_fast_path_and_hard_ones_do_not() {
+    let mut localizer = Localizer::new(Params { method: Method::Consistency, ..Params::default() });
+    for (preset, fast) in [("easy+close", true), ("sift", true), ("hard", false)] {
+        let scene = generate(&SynthConfig { frames: 3, seed: 9, ..SynthConfig::preset(preset).unwrap() });
+        localizer.set_map(&scene.map);
+        for f in &scene.frames {
+            let loc = localizer.process(f);
+            assert_eq!(loc.fast_path, fast, "{preset}: {:?}", loc.fast_path_check);
+            assert!(loc.pose.is_some(), "{preset}: {:?}", loc.failure);
+            if fast {
+                assert_eq!(loc.timings.geometry_ms + loc.timings.reject_ms, 0.0, "{preset}: no rejection ran");
+            } else {
+                assert!(loc.fast_path_check.is_some_and(|c| c.inlier_ratio < 0.3), "{preset}");
+            }
+        }
+    }
 }

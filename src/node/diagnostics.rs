@@ -35,6 +35,10 @@ pub struct Stats {
     pub queued_max: usize,
     latencies_ms: VecDeque<f64>,
     processing_ms: VecDeque<f64>,
+    /// The prior's quality of recent localized frames, and whether each was settled by the
+    /// cascade's fast path (see [`Stats::frame_evidence`]).
+    prior_quality: VecDeque<f64>,
+    fast_path: VecDeque<bool>,
     /// (time, frames_in, frames_localized) at the last report, for rates.
     last_report: (Instant, u64, u64),
 }
@@ -57,6 +61,8 @@ impl Default for Stats {
             queued_max: 0,
             latencies_ms: VecDeque::new(),
             processing_ms: VecDeque::new(),
+            prior_quality: VecDeque::new(),
+            fast_path: VecDeque::new(),
             last_report: (now, 0, 0),
         }
     }
@@ -98,6 +104,21 @@ impl Stats {
         }
     }
 
+    /// What a localized frame's evidence was: the prior's quality at its pose (`None` when
+    /// unknown) and whether the cascade's fast path settled it.
+    pub fn frame_evidence(&mut self, prior_quality: Option<f64>, fast_path: bool) {
+        if let Some(q) = prior_quality {
+            if self.prior_quality.len() == LATENCY_WINDOW {
+                self.prior_quality.pop_front();
+            }
+            self.prior_quality.push_back(q);
+        }
+        if self.fast_path.len() == LATENCY_WINDOW {
+            self.fast_path.pop_front();
+        }
+        self.fast_path.push_back(fast_path);
+    }
+
     /// The aggregated status, with rates since the previous call.
     pub fn report(&mut self, stamp: Stamp, node_name: &str) -> DiagnosticArray {
         let now = Instant::now();
@@ -108,6 +129,9 @@ impl Stats {
         self.last_report = (now, self.frames_in, self.frames_localized);
         let lat: Vec<f64> = self.latencies_ms.iter().copied().collect();
         let proc_: Vec<f64> = self.processing_ms.iter().copied().collect();
+        let quality: Vec<f64> = self.prior_quality.iter().copied().collect();
+        let fast_share = (!self.fast_path.is_empty())
+            .then(|| self.fast_path.iter().filter(|&&f| f).count() as f64 / self.fast_path.len() as f64);
         let mut values = vec![
             ("uptime_s", format!("{:.1}", now.duration_since(self.started).as_secs_f64())),
             ("frames_received", self.frames_received.to_string()),
@@ -119,6 +143,9 @@ impl Stats {
             ("latency_ms_median", median(&lat).map(|v| format!("{v:.2}")).unwrap_or_default()),
             ("processing_ms_median", median(&proc_).map(|v| format!("{v:.2}")).unwrap_or_default()),
             ("queued_max", self.queued_max.to_string()),
+            ("prior_quality_median", median(&quality).map(|v| format!("{v:.3}")).unwrap_or_default()),
+            ("prior_quality_last", self.prior_quality.back().map(|v| format!("{v:.3}")).unwrap_or_default()),
+            ("fast_path_share", fast_share.map(|v| format!("{v:.2}")).unwrap_or_default()),
             ("maps_received", self.maps_received.to_string()),
             ("map_points", self.map_points.to_string()),
             ("dropped_total", self.drops.values().sum::<u64>().to_string()),
@@ -175,7 +202,11 @@ mod tests {
         s.error("pnp", "frame 3: PnP failed");
         s.frame_done(3, false, 12.0, 10.0);
         s.frame_done(4, true, 8.0, 6.0);
+        s.frame_evidence(Some(0.8), false);
+        s.frame_evidence(None, true);
         let r = s.report(5, "/angle_i2p");
+        assert_eq!(status_value(&r, "prior_quality_last"), Some("0.800"));
+        assert_eq!(status_value(&r, "fast_path_share"), Some("0.50"));
         assert_eq!(status_value(&r, "dropped.queue_full"), Some("2"));
         assert_eq!(status_value(&r, "error.pnp"), Some("1"));
         assert_eq!(status_value(&r, "frames_localized"), Some("1"));

@@ -510,6 +510,9 @@ async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outp
         let latency = job.arrived.elapsed().as_secs_f64() * 1e3;
         let mut s = lock(&outputs.stats);
         s.frame_done(stamp, loc.pose.is_some(), latency, loc.timings.total_ms);
+        if loc.pose.is_some() {
+            s.frame_evidence(loc.prior_quality, loc.fast_path);
+        }
         if let Some(f) = &loc.failure {
             s.error(f.key(), format!("frame {stamp}: {f}"));
             drop(s);
