@@ -14,6 +14,7 @@ REALISTIC_PRIOR_SUFFIXES = ("-harsh", "-disparity")
 EXTREME_SHARED_PRIOR_RR = 90.0
 EXTREME_REALISTIC_MARGIN = 15.0
 MAX_TIME_RATIO = 0.5
+RR_EPSILON = 1e-9  # RR is 100·k/n: compared with a tolerance of float rounding
 
 
 @dataclasses.dataclass
@@ -52,11 +53,11 @@ def criteria_failures(tier: Tier | None, summary: dict, poselib: dict) -> list[s
         return None
     failed = []
     rr, pl_rr = summary["RR"], poselib["RR"]
-    if tier.name in ("sift", "hard") and rr < 100.0:
+    if tier.name in ("sift", "hard") and rr < 100.0 - RR_EPSILON:
         failed.append(f"RR {rr:.1f} < 100")
-    if tier.name == "extreme" and not tier.realistic_prior and rr < EXTREME_SHARED_PRIOR_RR:
+    if tier.name == "extreme" and not tier.realistic_prior and rr < EXTREME_SHARED_PRIOR_RR - RR_EPSILON:
         failed.append(f"RR {rr:.1f} < {EXTREME_SHARED_PRIOR_RR:.0f}")
-    if tier.name == "extreme" and tier.realistic_prior and rr < pl_rr + EXTREME_REALISTIC_MARGIN:
+    if tier.name == "extreme" and tier.realistic_prior and rr < pl_rr + EXTREME_REALISTIC_MARGIN - RR_EPSILON:
         failed.append(f"RR {rr:.1f} < PoseLib {pl_rr:.1f} + {EXTREME_REALISTIC_MARGIN:.0f}")
     if tier.name in ("sift", "hard") and not at_most(summary.get("MRE"), poselib.get("MRE")):
         failed.append(f"MRE {number(summary.get('MRE'), 3)} > PoseLib {number(poselib.get('MRE'), 3)}")

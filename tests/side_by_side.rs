@@ -1,0 +1,106 @@
+//! The side-by-side benchmark (`scripts/side_by_side.py`, `make side-by-side`) on the shipped bag
+//! `bags/synth-hard`: its table has our rows and PoseLib's, its numbers are sane, the PoseLib row
+//! is scored with eval's definitions (checked by rescoring our own rows in Python), per-bag
+//! parameters reach the replay, and its verdict logic holds on hand-made cases.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+mod common;
+use common::{binary, manifest, python, skip_or_fail};
+
+fn side_by_side(python: &Path, out: &Path, extra: &[&str]) -> Output {
+    Command::new(python)
+        .arg(manifest().join("scripts/side_by_side.py"))
+        .arg(manifest().join("bags/synth-hard"))
+        .arg("--out")
+        .arg(out)
+        .arg("--binary")
+        .arg(binary())
+        .args(extra)
+        .output()
+        .expect("spawn the side-by-side script")
+}
+
+fn eval_python() -> Option<std::path::PathBuf> {
+    let p = python();
+    if p.is_none() {
+        skip_or_fail("no Python venv with poselib and rosbags (make py-venv, or set ANGLE_I2P_PYTHON)");
+    }
+    p
+}
+
+fn number(v: &serde_json::Value, key: &str) -> f64 {
+    v[key].as_f64().unwrap_or_else(|| panic!("{key} is not a number in {v}"))
+}
+
+#[test]
+fn ransac_beside_poselib_on_the_shipped_hard_bag() {
+    let Some(py) = eval_python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    // A --bag-param whose glob matches no bag must not reach the replay (the name is not a parameter).
+    let out = side_by_side(&py, dir.path(), &["--methods", "ransac", "--bag-param", "no-such-bag*:bogus.name:=1"]);
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(stdout.contains("### synth-hard (hard tier, shared prior; 20 frames)"), "{stdout}");
+    let row = |label: &str| stdout.lines().find(|l| l.starts_with(&format!("| {label} |"))).map(str::to_owned);
+    let poselib_row = row("PoseLib LO-RANSAC (10k it, 8 px)").unwrap_or_else(|| panic!("no PoseLib row:\n{stdout}"));
+    let ransac_row = row("ransac").unwrap_or_else(|| panic!("no ransac row:\n{stdout}"));
+    assert!(poselib_row.ends_with("| 1.00 | – |"), "{poselib_row}");
+    assert!(ransac_row.contains("| PASS |") || ransac_row.contains("| FAIL: "), "{ransac_row}");
+
+    let text = std::fs::read_to_string(dir.path().join("side_by_side.json")).unwrap();
+    let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let bag = &doc["bags"][0];
+    assert_eq!(bag["tier"]["name"], "hard");
+    let poselib = &bag["poselib"]["summary"];
+    assert_eq!(poselib["frames"], 20, "{poselib}");
+    // The hard synthetic tier is within PoseLib's reach: most frames register, with small errors.
+    assert!(number(poselib, "RR") >= 80.0, "{poselib}");
+    assert!(number(poselib, "MRE") < 5.0 && number(poselib, "MTE") < 0.2, "{poselib}");
+    assert!(number(poselib, "median_ms") > 0.0, "{poselib}");
+    let poselib_frames = bag["poselib"]["frames"].as_array().unwrap();
+    assert!(poselib_frames.iter().all(|f| f["iterations"].as_u64().is_some_and(|i| (100..=10_000).contains(&i))));
+
+    let runs = bag["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 1, "--methods ransac runs ransac only");
+    let ransac = &runs[0];
+    assert_eq!(ransac["method"], "ransac");
+    let (eval, rescored) = (&ransac["summary"], &ransac["rescored"]);
+    assert_eq!(eval["frames"], 20);
+    assert!(number(eval, "RR") >= 80.0 && number(eval, "median_ms") > 0.0, "{eval}");
+    // Our rows rescored by the script's Python metrics equal eval's: PoseLib's row, scored by the
+    // same Python, follows eval's definitions.
+    assert_eq!(eval["RR"], rescored["RR"], "{eval} vs {rescored}");
+    for key in ["MRE", "MTE", "median_ms"] {
+        assert!((number(eval, key) - number(rescored, key)).abs() < 1e-6, "{key}: {eval} vs {rescored}");
+    }
+    let frames = ransac["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 20);
+    assert!(frames.iter().all(|f| f["ms"].as_f64().is_some_and(|ms| ms > 0.0) && f.get("failure").is_some()));
+    assert!(ransac["failed_criteria"].is_array(), "a hard-tier bag gets a verdict");
+    assert!(std::fs::read_to_string(dir.path().join("side_by_side.md")).unwrap().contains(&poselib_row));
+}
+
+#[test]
+fn a_matching_bag_param_reaches_the_replay() {
+    let Some(py) = eval_python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = side_by_side(&py, dir.path(), &["--methods", "ransac", "--bag-param", "synth-*:bogus.name:=1"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "a misspelt parameter fails the replay: {stderr}");
+    assert!(stderr.starts_with("error: ") && stderr.contains("bogus.name"), "{stderr}");
+    let bad = side_by_side(&py, dir.path(), &["--bag-param", "synth-hard"]);
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("expected GLOB:NAME:=VALUE"));
+}
+
+#[test]
+fn verdicts_follow_the_issue_criteria() {
+    let Some(py) = eval_python() else { return };
+    let out = Command::new(py).arg(manifest().join("tests/python/side_by_side_criteria.py")).output().unwrap();
+    assert!(
+        out.status.success() && String::from_utf8_lossy(&out.stdout).trim() == "ok",
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
