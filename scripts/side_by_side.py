@@ -61,6 +61,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="parameter override for the bags whose name or path matches GLOB (repeatable)")
     ap.add_argument("--binary", type=pathlib.Path, help="the angle-i2p binary (default: $ANGLE_I2P_BIN, "
                     "$CARGO_TARGET_DIR/release/angle-i2p, target/release/angle-i2p, then PATH)")
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="timing rounds: every replay and PoseLib run this often, interleaved; a frame's time is "
+                    "its median over the rounds, the metrics are the first round's (default: %(default)s)")
     ap.add_argument("--strict", action="store_true", help="exit with status 1 when a verdict is FAIL")
     return ap.parse_args(argv)
 
@@ -128,13 +131,19 @@ def topics(binary: pathlib.Path, param_args: list[str]) -> dict:
         raise BenchError(f"`angle-i2p params` printed no topics ({e})") from e
 
 
-def replay_and_eval(binary, bag, run_dir: pathlib.Path, method: str, param_args: list[str], frames, topic_map) -> dict:
-    """One replay of `bag` with `method` ('default': no --method), its eval summary and its frames."""
+def replay(binary, bag, run_dir: pathlib.Path, method: str, param_args: list[str]) -> list[str]:
+    """`angle-i2p replay` of `bag` into `run_dir` (replaced) with `method` ('default': no --method); its arguments."""
     if run_dir.exists():
         shutil.rmtree(run_dir)
     run_dir.parent.mkdir(parents=True, exist_ok=True)
     method_args = [] if method == "default" else ["--method", method]
     run([binary, "replay", bag, "--out", run_dir, *method_args, *param_args])
+    return [*method_args, *param_args]
+
+
+def replay_and_eval(binary, bag, run_dir: pathlib.Path, method: str, param_args: list[str], frames, topic_map) -> dict:
+    """One replay of `bag` with `method`, its eval summary and its frames."""
+    replay_args = replay(binary, bag, run_dir, method, param_args)
     eval_args = ["--params-file", param_args[1]] if param_args[:1] == ["--params-file"] else []
     evaluated = json.loads(run([binary, "eval", bag, "--est", run_dir, "--json", *eval_args]))
     if len(evaluated) != 1:
@@ -146,8 +155,33 @@ def replay_and_eval(binary, bag, run_dir: pathlib.Path, method: str, param_args:
         o = outputs.get(f.stamp, bag_scoring.OutputFrame(failure="no output for this frame"))
         rows.append(bag_scoring.frame_row(f, o.pose, o.ms, o.failure, kept=o.kept, pnp_inliers=o.pnp_inliers))
     label = f"{name} (default)" if method == "default" else name
-    return {"label": label, "method": name, "replay_args": [*method_args, *param_args], "output_bag": str(run_dir),
-            "summary": summary, "rescored": bag_scoring.summarize(rows), "frames": rows}
+    return {"label": label, "method": name, "replay_args": replay_args, "output_bag": str(run_dir),
+            "summary": summary, "eval_summary": summary, "rescored": bag_scoring.summarize(rows), "frames": rows}
+
+
+def replay_times(binary, bag, run_dir: pathlib.Path, method: str, param_args: list[str], frames, topic_map) -> list:
+    """Per frame, the ms of one more replay (a timing round); its output bag is removed after."""
+    replay(binary, bag, run_dir, method, param_args)
+    outputs = bag_scoring.read_output(run_dir, topic_map["pose"])
+    shutil.rmtree(run_dir)
+    return [outputs[f.stamp].ms if f.stamp in outputs else None for f in frames]
+
+
+def add_timing_round(run_result: dict, times: list) -> None:
+    for row, ms in zip(run_result["frames"], times):
+        row.setdefault("ms_rounds", [row["ms"]]).append(ms)
+
+
+def settle_timing(run_result: dict, rounds: int) -> None:
+    """With several rounds, a frame's ms is its median over the rounds, and the row's times follow."""
+    if rounds < 2:
+        return
+    for row in run_result["frames"]:
+        measured = [ms for ms in row["ms_rounds"] if ms is not None]
+        row["ms"] = float(np.median(measured)) if measured else None
+    rescored = bag_scoring.summarize(run_result["frames"])
+    run_result["summary"] = {**run_result["summary"], "median_ms": rescored["median_ms"],
+                             "ms_per_frame": rescored["ms_per_frame"], "timing_rounds": rounds}
 
 
 def poselib_frame(frame: bag_scoring.InputFrame) -> dict:
@@ -178,7 +212,7 @@ def poselib_run(frames: list) -> dict:
     rows = [poselib_frame(f) for f in frames]
     summary = bag_scoring.summarize(rows)
     return {"label": POSELIB_LABEL, "method": "poselib", "options": POSELIB_RANSAC, "summary": summary,
-            "rescored": summary, "frames": rows}
+            "frames": rows}
 
 
 def bench_bag(args, binary: pathlib.Path, bag: pathlib.Path, out_dir: pathlib.Path, methods: list[str]) -> dict:
@@ -192,6 +226,13 @@ def bench_bag(args, binary: pathlib.Path, bag: pathlib.Path, out_dir: pathlib.Pa
     runs = [replay_and_eval(binary, bag, out_dir / m.replace("/", "_"), m, param_args, frames, topic_map)
             for m in methods]
     poselib = poselib_run(frames)
+    for round_index in range(1, args.rounds):  # interleaved, so that the machine's load hits every row alike
+        for r, m in zip(runs, methods):
+            run_dir = out_dir / f"{m.replace('/', '_')}.round{round_index}"
+            add_timing_round(r, replay_times(binary, bag, run_dir, m, param_args, frames, topic_map))
+        add_timing_round(poselib, [poselib_frame(f)["ms"] for f in frames])
+    for r in [*runs, poselib]:
+        settle_timing(r, args.rounds)
     tier = report.tier_of(bag_name(bag))
     for r in runs:
         r["failed_criteria"] = report.criteria_failures(tier, r["summary"], poselib["summary"])
@@ -204,6 +245,9 @@ def main(argv=None) -> int:
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] + args.method
     if not methods:
         print("error: no method to run (--methods is empty)", file=sys.stderr)
+        return 2
+    if args.rounds < 1:
+        print(f"error: --rounds {args.rounds}: at least 1", file=sys.stderr)
         return 2
     try:
         binary = find_binary(args.binary)
@@ -223,7 +267,7 @@ def main(argv=None) -> int:
         return 1
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "side_by_side.md").write_text("\n".join(text for _, text in results))
-    document = {"binary": str(binary), "methods": methods, "poselib_options": POSELIB_RANSAC,
+    document = {"binary": str(binary), "methods": methods, "timing_rounds": args.rounds, "poselib_options": POSELIB_RANSAC,
                 "criteria": report.CRITERIA_TEXT, "bags": [r for r, _ in results]}
     (args.out / "side_by_side.json").write_text(json.dumps(document, indent=1))
     failed = any(r["failed_criteria"] for res, _ in results for r in res["runs"] if r["failed_criteria"] is not None)

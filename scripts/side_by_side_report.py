@@ -86,7 +86,9 @@ def markdown_table(result: dict) -> str:
     tier = Tier(**result["tier"]) if result["tier"] else None
     poselib = result["poselib"]["summary"]
     frames = poselib["frames"]
-    lines = [f"### {result['name']} ({tier.describe() if tier else 'no tier'}; {frames} frames)", "",
+    rounds = poselib.get("timing_rounds", 1)
+    timing = f"; times: per-frame median of {rounds} rounds" if rounds > 1 else ""
+    lines = [f"### {result['name']} ({tier.describe() if tier else 'no tier'}; {frames} frames{timing})", "",
              "| method | RR % | MRE ° | MTE m | median ms | time / PoseLib | verdict |",
              "|---|---|---|---|---|---|---|"]
     for r in result["runs"]:

@@ -39,10 +39,17 @@ fn ransac_beside_poselib_on_the_shipped_hard_bag() {
     let Some(py) = eval_python() else { return };
     let dir = tempfile::tempdir().unwrap();
     // A --bag-param whose glob matches no bag must not reach the replay (the name is not a parameter).
-    let out = side_by_side(&py, dir.path(), &["--methods", "ransac", "--bag-param", "no-such-bag*:bogus.name:=1"]);
+    let out = side_by_side(
+        &py,
+        dir.path(),
+        &["--methods", "ransac", "--rounds", "2", "--bag-param", "no-such-bag*:bogus.name:=1"],
+    );
     let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
     assert!(out.status.success(), "stdout:\n{stdout}\nstderr:\n{stderr}");
-    assert!(stdout.contains("### synth-hard (hard tier, shared prior; 20 frames)"), "{stdout}");
+    assert!(
+        stdout.contains("### synth-hard (hard tier, shared prior; 20 frames; times: per-frame median of 2 rounds)"),
+        "{stdout}"
+    );
     let row = |label: &str| stdout.lines().find(|l| l.starts_with(&format!("| {label} |"))).map(str::to_owned);
     let poselib_row = row("PoseLib LO-RANSAC (10k it, 8 px)").unwrap_or_else(|| panic!("no PoseLib row:\n{stdout}"));
     let ransac_row = row("ransac").unwrap_or_else(|| panic!("no ransac row:\n{stdout}"));
@@ -66,7 +73,7 @@ fn ransac_beside_poselib_on_the_shipped_hard_bag() {
     assert_eq!(runs.len(), 1, "--methods ransac runs ransac only");
     let ransac = &runs[0];
     assert_eq!(ransac["method"], "ransac");
-    let (eval, rescored) = (&ransac["summary"], &ransac["rescored"]);
+    let (eval, rescored) = (&ransac["eval_summary"], &ransac["rescored"]);
     assert_eq!(eval["frames"], 20);
     assert!(number(eval, "RR") >= 80.0 && number(eval, "median_ms") > 0.0, "{eval}");
     // Our rows rescored by the script's Python metrics equal eval's: PoseLib's row, scored by the
@@ -78,6 +85,21 @@ fn ransac_beside_poselib_on_the_shipped_hard_bag() {
     let frames = ransac["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 20);
     assert!(frames.iter().all(|f| f["ms"].as_f64().is_some_and(|ms| ms > 0.0) && f.get("failure").is_some()));
+    // Two timing rounds: each frame's time is the median (here the mean) of its two, and the
+    // table's median is over those.
+    let mut per_frame: Vec<f64> = frames
+        .iter()
+        .map(|f| {
+            let rounds: Vec<f64> = f["ms_rounds"].as_array().unwrap().iter().filter_map(|v| v.as_f64()).collect();
+            assert_eq!(rounds.len(), 2, "{f}");
+            assert!((number(f, "ms") - (rounds[0] + rounds[1]) / 2.0).abs() < 1e-9, "{f}");
+            number(f, "ms")
+        })
+        .collect();
+    per_frame.sort_by(f64::total_cmp);
+    let median = (per_frame[9] + per_frame[10]) / 2.0;
+    assert!((number(&ransac["summary"], "median_ms") - median).abs() < 1e-9, "{}", ransac["summary"]);
+    assert_eq!(ransac["summary"]["timing_rounds"], 2);
     assert!(ransac["failed_criteria"].is_array(), "a hard-tier bag gets a verdict");
     assert!(std::fs::read_to_string(dir.path().join("side_by_side.md")).unwrap().contains(&poselib_row));
 }
