@@ -116,6 +116,42 @@ fn a_matching_bag_param_reaches_the_replay() {
     assert!(String::from_utf8_lossy(&bad.stderr).contains("expected GLOB:NAME:=VALUE"));
 }
 
+/// A `side_by_side.yaml` in the bag directory gives that bag's parameters.
+#[test]
+fn a_bag_params_file_reaches_the_replay() {
+    let Some(py) = eval_python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("synth-hard");
+    std::fs::create_dir(&bag).unwrap();
+    for entry in std::fs::read_dir(manifest().join("bags/synth-hard")).unwrap() {
+        let path = entry.unwrap().path();
+        std::fs::copy(&path, bag.join(path.file_name().unwrap())).unwrap();
+    }
+    let run = |yaml: &str| {
+        std::fs::write(bag.join("side_by_side.yaml"), yaml).unwrap();
+        Command::new(&py)
+            .arg(manifest().join("scripts/side_by_side.py"))
+            .arg(&bag)
+            .arg("--out")
+            .arg(dir.path().join("out"))
+            .arg("--binary")
+            .arg(binary())
+            .args(["--methods", "ransac"])
+            .output()
+            .unwrap()
+    };
+    let out = run("params:\n  pnp.max_iterations: 200\n");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(dir.path().join("out/side_by_side.json")).unwrap();
+    let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let args = &doc["bags"][0]["runs"][0]["replay_args"];
+    assert_eq!(args, &serde_json::json!(["--method", "ransac", "-p", "pnp.max_iterations:=200"]));
+    let out = run("params:\n  pnp.max_iterations: 200\n  bogus.from_file: true\n");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("bogus.from_file"), "{stderr}");
+}
+
 #[test]
 fn verdicts_follow_the_issue_criteria() {
     let Some(py) = eval_python() else { return };
