@@ -2,7 +2,9 @@
 issue 9 checked against PoseLib's row, and the markdown table printed per bag."""
 from __future__ import annotations
 
+import collections
 import dataclasses
+import re
 
 CRITERIA_TEXT = {
     "sift": "RR 100 %, MRE and MTE <= PoseLib's, median ms <= 1/2 PoseLib's",
@@ -81,6 +83,12 @@ def verdict(failed: list[str] | None) -> str:
     return "PASS" if not failed else "FAIL: " + "; ".join(failed)
 
 
+def failure_counts(frames: list[dict]) -> collections.Counter:
+    """Frames without a pose, by reason with its numbers as # (a pose is no failure, even when it is not registered)."""
+    return collections.Counter(re.sub(r"\d+(\.\d+)?", "#", f["failure"] or "no pose")
+                               for f in frames if not f["has_pose"])
+
+
 def markdown_table(result: dict) -> str:
     """One bag's table: a row per replayed method, then PoseLib's."""
     tier = Tier(**result["tier"]) if result["tier"] else None
@@ -98,6 +106,12 @@ def markdown_table(result: dict) -> str:
                      f"{verdict(r['failed_criteria'])} |")
     lines.append(f"| {result['poselib']['label']} | {poselib['RR']:.1f} | {number(poselib.get('MRE'), 3)} | "
                  f"{number(poselib.get('MTE'), 4)} | {number(poselib.get('median_ms'), 2)} | 1.00 | – |")
+    for r in [*result["runs"], result["poselib"]]:
+        reasons = failure_counts(r["frames"])
+        if reasons:
+            lines.append(f"\n{r['label']}: {sum(reasons.values())} frames without a pose: "
+                         + "; ".join(f"{reason} ({n})" for reason, n in reasons.most_common(3))
+                         + ("; …" if len(reasons) > 3 else "") + ".")
     mismatched = [r["label"] for r in result["runs"] if r["summary"].get("frames") != frames]
     if mismatched:
         lines.append(f"\nNote: eval scored a different number of frames than PoseLib for {', '.join(mismatched)}.")

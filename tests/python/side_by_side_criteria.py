@@ -36,6 +36,10 @@ def main():
     assert r.criteria_failures(hard, summary(100.0, mre=None, ms=2.0), poselib) == ["MRE – > PoseLib 3.000"]
     assert r.criteria_failures(hard, summary(100.0, ms=2.0), summary(0.0, mre=None, ms=None)) == ["no time to compare"]
     assert r.criteria_failures(None, summary(0.0), poselib) is None
+    frames = [{"has_pose": False, "failure": "PnP failed: best pose has 5 inliers, 6 required"},
+              {"has_pose": False, "failure": "PnP failed: best pose has 4 inliers, 6 required"},
+              {"has_pose": False, "failure": None}, {"has_pose": True, "failure": None}]
+    assert r.failure_counts(frames) == {"PnP failed: best pose has # inliers, # required": 2, "no pose": 1}
     print("ok")
 
 
