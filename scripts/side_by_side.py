@@ -20,6 +20,7 @@ both become `-p NAME:=VALUE` of that bag's replays, after the global `-p`s.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import fnmatch
 import json
 import os
@@ -100,7 +101,11 @@ def bag_params(bag: pathlib.Path, bag_param_flags: list[str]) -> list[str]:
     file = bag / BAG_PARAMS_FILE
     if bag.is_dir() and file.is_file():
         from ruamel.yaml import YAML  # rosbags' YAML library, in the eval venv
-        doc = YAML(typ="safe").load(file.read_text()) or {}
+        from ruamel.yaml import YAMLError
+        try:
+            doc = YAML(typ="safe").load(file.read_text()) or {}
+        except YAMLError as e:
+            raise BenchError(f"{file}: not YAML: {e}") from e
         mapping = doc.get("params", {}) if isinstance(doc, dict) else None
         if not isinstance(mapping, dict):
             raise BenchError(f"{file}: expected a mapping `params: {{NAME: VALUE}}`")
@@ -131,27 +136,42 @@ def topics(binary: pathlib.Path, param_args: list[str]) -> dict:
         raise BenchError(f"`angle-i2p params` printed no topics ({e})") from e
 
 
-def replay(binary, bag, run_dir: pathlib.Path, method: str, param_args: list[str]) -> list[str]:
-    """`angle-i2p replay` of `bag` into `run_dir` (replaced) with `method` ('default': no --method); its arguments."""
-    if run_dir.exists():
-        shutil.rmtree(run_dir)
-    run_dir.parent.mkdir(parents=True, exist_ok=True)
-    method_args = [] if method == "default" else ["--method", method]
-    run([binary, "replay", bag, "--out", run_dir, *method_args, *param_args])
-    return [*method_args, *param_args]
+@dataclasses.dataclass
+class BagRuns:
+    """What every run on one bag shares."""
+    binary: pathlib.Path
+    bag: pathlib.Path
+    out_dir: pathlib.Path
+    param_args: list  # --params-file and -p arguments of every replay
+    eval_args: list  # --params-file of eval
+    topics: dict
+    frames: list  # bag_scoring.InputFrame, in stamp order
+
+    def run_dir(self, method: str, round_index: int = 0) -> pathlib.Path:
+        name = method.replace("/", "_")
+        return self.out_dir / (name if round_index == 0 else f"{name}.round{round_index}")
+
+    def replay(self, method: str, run_dir: pathlib.Path) -> list[str]:
+        """`angle-i2p replay` into `run_dir` (replaced) with `method` ('default': no --method); its arguments."""
+        if run_dir.exists():
+            shutil.rmtree(run_dir)
+        run_dir.parent.mkdir(parents=True, exist_ok=True)
+        method_args = [] if method == "default" else ["--method", method]
+        run([self.binary, "replay", self.bag, "--out", run_dir, *method_args, *self.param_args])
+        return [*method_args, *self.param_args]
 
 
-def replay_and_eval(binary, bag, run_dir: pathlib.Path, method: str, param_args: list[str], frames, topic_map) -> dict:
-    """One replay of `bag` with `method`, its eval summary and its frames."""
-    replay_args = replay(binary, bag, run_dir, method, param_args)
-    eval_args = ["--params-file", param_args[1]] if param_args[:1] == ["--params-file"] else []
-    evaluated = json.loads(run([binary, "eval", bag, "--est", run_dir, "--json", *eval_args]))
+def replay_and_eval(ctx: BagRuns, method: str) -> dict:
+    """One replay of the bag with `method`, its eval summary and its frames."""
+    run_dir = ctx.run_dir(method)
+    replay_args = ctx.replay(method, run_dir)
+    evaluated = json.loads(run([ctx.binary, "eval", ctx.bag, "--est", run_dir, "--json", *ctx.eval_args]))
     if len(evaluated) != 1:
         raise BenchError(f"eval of {run_dir} printed {len(evaluated)} rows, expected 1")
     (name, summary), = evaluated.items()
-    outputs = bag_scoring.read_output(run_dir, topic_map["pose"])
+    outputs = bag_scoring.read_output(run_dir, ctx.topics["pose"])
     rows = []
-    for f in frames:
+    for f in ctx.frames:
         o = outputs.get(f.stamp, bag_scoring.OutputFrame(failure="no output for this frame"))
         rows.append(bag_scoring.frame_row(f, o.pose, o.ms, o.failure, kept=o.kept, pnp_inliers=o.pnp_inliers))
     label = f"{name} (default)" if method == "default" else name
@@ -159,12 +179,13 @@ def replay_and_eval(binary, bag, run_dir: pathlib.Path, method: str, param_args:
             "summary": summary, "eval_summary": summary, "rescored": bag_scoring.summarize(rows), "frames": rows}
 
 
-def replay_times(binary, bag, run_dir: pathlib.Path, method: str, param_args: list[str], frames, topic_map) -> list:
+def replay_times(ctx: BagRuns, method: str, round_index: int) -> list:
     """Per frame, the ms of one more replay (a timing round); its output bag is removed after."""
-    replay(binary, bag, run_dir, method, param_args)
-    outputs = bag_scoring.read_output(run_dir, topic_map["pose"])
+    run_dir = ctx.run_dir(method, round_index)
+    ctx.replay(method, run_dir)
+    outputs = bag_scoring.read_output(run_dir, ctx.topics["pose"])
     shutil.rmtree(run_dir)
-    return [outputs[f.stamp].ms if f.stamp in outputs else None for f in frames]
+    return [outputs[f.stamp].ms if f.stamp in outputs else None for f in ctx.frames]
 
 
 def add_timing_round(run_result: dict, times: list) -> None:
@@ -216,6 +237,7 @@ def poselib_run(frames: list) -> dict:
 
 
 def bench_bag(args, binary: pathlib.Path, bag: pathlib.Path, out_dir: pathlib.Path, methods: list[str]) -> dict:
+    """Every method's replay and PoseLib on one bag, their timing rounds and verdicts."""
     extra = bag_params(bag, args.bag_param)
     param_args = params_args(args, extra)
     topic_map = topics(binary, param_args)
@@ -223,13 +245,13 @@ def bench_bag(args, binary: pathlib.Path, bag: pathlib.Path, out_dir: pathlib.Pa
     frames = [f for _, f in sorted(inputs.items()) if f.scorable() and f.correspondences is not None]
     if not frames:
         raise BenchError(f"{bag}: no frame with camera info, correspondences, ground-truth pose and depth")
-    runs = [replay_and_eval(binary, bag, out_dir / m.replace("/", "_"), m, param_args, frames, topic_map)
-            for m in methods]
+    eval_args = ["--params-file", str(args.params_file)] if args.params_file else []
+    ctx = BagRuns(binary, bag, out_dir, param_args, eval_args, topic_map, frames)
+    runs = [replay_and_eval(ctx, m) for m in methods]
     poselib = poselib_run(frames)
     for round_index in range(1, args.rounds):  # interleaved, so that the machine's load hits every row alike
         for r, m in zip(runs, methods):
-            run_dir = out_dir / f"{m.replace('/', '_')}.round{round_index}"
-            add_timing_round(r, replay_times(binary, bag, run_dir, m, param_args, frames, topic_map))
+            add_timing_round(r, replay_times(ctx, m, round_index))
         add_timing_round(poselib, [poselib_frame(f)["ms"] for f in frames])
     for r in [*runs, poselib]:
         settle_timing(r, args.rounds)
@@ -238,6 +260,27 @@ def bench_bag(args, binary: pathlib.Path, bag: pathlib.Path, out_dir: pathlib.Pa
         r["failed_criteria"] = report.criteria_failures(tier, r["summary"], poselib["summary"])
     return {"bag": str(bag), "name": bag_name(bag), "tier": tier.__dict__ if tier else None, "bag_params": extra,
             "read_issues": issues, "runs": runs, "poselib": poselib}
+
+
+def bench_all(args, binary: pathlib.Path, methods: list[str]) -> list[dict]:
+    """Every bag in turn; a bag that fails is reported (printed and in the JSON) and the others go on."""
+    results, keys = [], set()
+    for bag in args.bags:
+        key = bag_name(bag)
+        key = key if key not in keys else f"{key}-{len(keys)}"
+        keys.add(key)
+        try:
+            if not bag.exists():
+                raise BenchError(f"{bag}: no such bag")
+            result = bench_bag(args, binary, bag, args.out / key, methods)
+            result["table"] = report.markdown_table(result)
+        except (BenchError, AnyReaderError, OSError) as e:
+            message = str(e) if isinstance(e, BenchError) else f"{bag}: {e}"
+            result = {"bag": str(bag), "name": key, "error": message, "table": f"### {key}\n\nerror: {message}\n"}
+            print(f"error: {message}", file=sys.stderr)
+        print(result["table"], flush=True)
+        results.append(result)
+    return results
 
 
 def main(argv=None) -> int:
@@ -251,26 +294,18 @@ def main(argv=None) -> int:
         return 2
     try:
         binary = find_binary(args.binary)
-        results, names = [], set()
-        for bag in args.bags:
-            if not bag.exists():
-                raise BenchError(f"{bag}: no such bag")
-            name = bag_name(bag)
-            key = name if name not in names else f"{name}-{len(names)}"
-            names.add(key)
-            result = bench_bag(args, binary, bag, args.out / key, methods)
-            text = report.markdown_table(result)
-            print(text, flush=True)
-            results.append((result, text))
-    except (BenchError, AnyReaderError) as e:
+    except BenchError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
+    results = bench_all(args, binary, methods)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "side_by_side.md").write_text("\n".join(text for _, text in results))
-    document = {"binary": str(binary), "methods": methods, "timing_rounds": args.rounds, "poselib_options": POSELIB_RANSAC,
-                "criteria": report.CRITERIA_TEXT, "bags": [r for r, _ in results]}
+    (args.out / "side_by_side.md").write_text("\n".join(r["table"] for r in results))
+    document = {"binary": str(binary), "methods": methods, "timing_rounds": args.rounds,
+                "poselib_options": POSELIB_RANSAC, "criteria": report.CRITERIA_TEXT, "bags": results}
     (args.out / "side_by_side.json").write_text(json.dumps(document, indent=1))
-    failed = any(r["failed_criteria"] for res, _ in results for r in res["runs"] if r["failed_criteria"] is not None)
+    if any("error" in r for r in results):
+        return 1
+    failed = any(r["failed_criteria"] for res in results for r in res["runs"] if r["failed_criteria"] is not None)
     return 1 if args.strict and failed else 0
 
 
