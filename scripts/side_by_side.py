@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Side-by-side benchmark: angle-i2p's methods against PoseLib's LO-RANSAC, bag by bag, in one run.
 
-    side_by_side.py BAG [BAG ...] --out DIR [--methods default,ransac] [--method consistency]
-                    [--params-file F] [-p NAME:=VALUE ...] [--bag-param GLOB:NAME:=VALUE ...]
-                    [--binary PATH] [--strict]
+    side_by_side.py [BAG ...] [--synth PRESET ...] --out DIR [--methods default,ransac]
+                    [--method consistency] [--params-file F] [-p NAME:=VALUE ...]
+                    [--bag-param GLOB:NAME:=VALUE ...] [--rounds N] [--binary PATH] [--strict]
 
 For each bag: `angle-i2p replay` once per method (the default method, then `ransac`, plus any
 `--method`), `angle-i2p eval --json` on each output, and PoseLib 2.0.5's LO-RANSAC (P3P, <= 10k
@@ -13,9 +13,11 @@ median ms per frame, time relative to PoseLib, and the verdict against the accep
 of the bag's tier) and writes DIR/side_by_side.json (every summary and every frame, with the
 failure reasons replay wrote to /diagnostics) and DIR/side_by_side.md (the tables).
 
-Per-bag parameters: `--bag-param 'GLOB:NAME:=VALUE'` (GLOB matched against the bag's name or
-path) or a file `side_by_side.yaml` inside the bag directory holding `params: {NAME: VALUE}`;
-both become `-p NAME:=VALUE` of that bag's replays, after the global `-p`s.
+`--synth PRESET` adds a bag that `angle-i2p synth` makes (seed --synth-seed, --synth-frames
+frames) in DIR/bags/synth-PRESET. Per-bag parameters: `--bag-param 'GLOB:NAME:=VALUE'` (GLOB
+matched against the bag's name or path) or a file `side_by_side.yaml` inside the bag directory
+holding `params: {NAME: VALUE}`; both become `-p NAME:=VALUE` of that bag's replays, after the
+global `-p`s.
 """
 from __future__ import annotations
 
@@ -50,7 +52,7 @@ class BenchError(Exception):
 def parse_args(argv=None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
-    ap.add_argument("bags", nargs="+", type=pathlib.Path, help="rosbag2 directories (or bare .mcap files)")
+    ap.add_argument("bags", nargs="*", type=pathlib.Path, help="rosbag2 directories (or bare .mcap files)")
     ap.add_argument("--out", type=pathlib.Path, required=True, help="directory for output bags and the JSON")
     ap.add_argument("--methods", default="default,ransac",
                     help="comma-separated replay methods; 'default' runs replay without --method (default: %(default)s)")
@@ -65,6 +67,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--rounds", type=int, default=1,
                     help="timing rounds: every replay and PoseLib run this often, interleaved; a frame's time is "
                     "its median over the rounds, the metrics are the first round's (default: %(default)s)")
+    ap.add_argument("--synth", action="append", default=[], metavar="PRESET",
+                    help="also a bag made by `angle-i2p synth --preset PRESET` into DIR/bags/synth-PRESET (repeatable)")
+    ap.add_argument("--synth-seed", type=int, default=1, help="seed of the --synth bags (default: %(default)s)")
+    ap.add_argument("--synth-frames", type=int, default=20, help="frames of the --synth bags (default: %(default)s)")
     ap.add_argument("--strict", action="store_true", help="exit with status 1 when a verdict is FAIL")
     return ap.parse_args(argv)
 
@@ -262,10 +268,21 @@ def bench_bag(args, binary: pathlib.Path, bag: pathlib.Path, out_dir: pathlib.Pa
             "read_issues": issues, "runs": runs, "poselib": poselib}
 
 
-def bench_all(args, binary: pathlib.Path, methods: list[str]) -> list[dict]:
+def synth_bags(args, binary: pathlib.Path) -> list[pathlib.Path]:
+    """The --synth presets as bags in DIR/bags (made anew, deterministic for a seed)."""
+    bags = []
+    for preset in args.synth:
+        bag = args.out / "bags" / f"synth-{preset}"
+        run([binary, "synth", "--preset", preset, "--seed", args.synth_seed, "--frames", args.synth_frames,
+             "--out", bag])
+        bags.append(bag)
+    return bags
+
+
+def bench_all(args, binary: pathlib.Path, bags: list[pathlib.Path], methods: list[str]) -> list[dict]:
     """Every bag in turn; a bag that fails is reported (printed and in the JSON) and the others go on."""
     results, keys = [], set()
-    for bag in args.bags:
+    for bag in bags:
         key = bag_name(bag)
         key = key if key not in keys else f"{key}-{len(keys)}"
         keys.add(key)
@@ -292,12 +309,16 @@ def main(argv=None) -> int:
     if args.rounds < 1:
         print(f"error: --rounds {args.rounds}: at least 1", file=sys.stderr)
         return 2
+    if not args.bags and not args.synth:
+        print("error: no bag to run (give BAGs or --synth PRESET)", file=sys.stderr)
+        return 2
     try:
         binary = find_binary(args.binary)
+        bags = [*args.bags, *synth_bags(args, binary)]
     except BenchError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
-    results = bench_all(args, binary, methods)
+    results = bench_all(args, binary, bags, methods)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "side_by_side.md").write_text("\n".join(r["table"] for r in results))
     document = {"binary": str(binary), "methods": methods, "timing_rounds": args.rounds,

@@ -178,3 +178,22 @@ fn verdicts_follow_the_issue_criteria() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// `--synth PRESET` makes the preset's bag and benchmarks it like a given one.
+#[test]
+fn a_synth_preset_is_made_and_benchmarked() {
+    let Some(py) = eval_python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(&py)
+        .arg(manifest().join("scripts/side_by_side.py"))
+        .args(["--synth", "sift", "--synth-frames", "3", "--methods", "ransac", "--out"])
+        .arg(dir.path())
+        .arg("--binary")
+        .arg(binary())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("### synth-sift (sift tier, shared prior; 3 frames)"), "{stdout}");
+    assert!(dir.path().join("bags/synth-sift/metadata.yaml").exists());
+}
