@@ -127,7 +127,7 @@ def read_input(bag: pathlib.Path, topics: dict) -> tuple[dict[int, InputFrame], 
                     frame.gt_pose = pose_matrix(msg.pose)
                 else:
                     frame.gt_depth = depth_metres(msg)
-            except (ValueError, AttributeError, TypeError) as e:
+            except Exception as e:  # noqa: BLE001 — one unreadable message skips that part of its frame, named
                 issues.append(f"{conn.topic} at log time {log_time}: {e}")
     return frames, issues
 

@@ -112,6 +112,8 @@ def markdown_table(result: dict) -> str:
             lines.append(f"\n{r['label']}: {sum(reasons.values())} frames without a pose: "
                          + "; ".join(f"{reason} ({n})" for reason, n in reasons.most_common(3))
                          + ("; …" if len(reasons) > 3 else "") + ".")
+    if result["read_issues"]:
+        lines.append(f"\n{len(result['read_issues'])} input messages could not be read, e.g. {result['read_issues'][0]}.")
     mismatched = [r["label"] for r in result["runs"] if r["summary"].get("frames") != frames]
     if mismatched:
         lines.append(f"\nNote: eval scored a different number of frames than PoseLib for {', '.join(mismatched)}.")
