@@ -89,6 +89,20 @@ def failure_counts(frames: list[dict]) -> collections.Counter:
                                for f in frames if not f["has_pose"])
 
 
+def misses_line(run: dict) -> str | None:
+    """The frames a row did not register: how many have a wrong pose, and why the others have none."""
+    wrong = sum(1 for f in run["frames"] if f["has_pose"] and not f["registered"])
+    reasons = failure_counts(run["frames"])
+    if not wrong and not reasons:
+        return None
+    parts = [f"{wrong} with a wrong pose (RMSE >= 0.1 m)"] if wrong else []
+    if reasons:
+        parts.append(f"{sum(reasons.values())} without a pose: "
+                     + "; ".join(f"{reason} ({n})" for reason, n in reasons.most_common(3))
+                     + ("; …" if len(reasons) > 3 else ""))
+    return f"\n{run['label']} misses {wrong + sum(reasons.values())} frames: " + "; ".join(parts) + "."
+
+
 def markdown_table(result: dict) -> str:
     """One bag's table: a row per replayed method, then PoseLib's."""
     tier = Tier(**result["tier"]) if result["tier"] else None
@@ -106,12 +120,7 @@ def markdown_table(result: dict) -> str:
                      f"{verdict(r['failed_criteria'])} |")
     lines.append(f"| {result['poselib']['label']} | {poselib['RR']:.1f} | {number(poselib.get('MRE'), 3)} | "
                  f"{number(poselib.get('MTE'), 4)} | {number(poselib.get('median_ms'), 2)} | 1.00 | – |")
-    for r in [*result["runs"], result["poselib"]]:
-        reasons = failure_counts(r["frames"])
-        if reasons:
-            lines.append(f"\n{r['label']}: {sum(reasons.values())} frames without a pose: "
-                         + "; ".join(f"{reason} ({n})" for reason, n in reasons.most_common(3))
-                         + ("; …" if len(reasons) > 3 else "") + ".")
+    lines += [line for r in [*result["runs"], result["poselib"]] if (line := misses_line(r))]
     if result["read_issues"]:
         lines.append(f"\n{len(result['read_issues'])} input messages could not be read, e.g. {result['read_issues'][0]}.")
     mismatched = [r["label"] for r in result["runs"] if r["summary"].get("frames") != frames]

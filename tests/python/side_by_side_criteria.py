@@ -40,6 +40,11 @@ def main():
               {"has_pose": False, "failure": "PnP failed: best pose has 4 inliers, 6 required"},
               {"has_pose": False, "failure": None}, {"has_pose": True, "failure": None}]
     assert r.failure_counts(frames) == {"PnP failed: best pose has # inliers, # required": 2, "no pose": 1}
+    run = {"label": "x", "frames": [{**f, "registered": f["has_pose"] and i == 3} for i, f in enumerate(frames)]}
+    assert r.misses_line(run) is not None and "misses 3 frames" in r.misses_line(run)
+    run["frames"].append({"has_pose": True, "registered": False, "failure": None})
+    assert "misses 4 frames: 1 with a wrong pose" in r.misses_line(run), r.misses_line(run)
+    assert r.misses_line({"label": "x", "frames": [{"has_pose": True, "registered": True, "failure": None}]}) is None
     print("ok")
 
 
