@@ -100,7 +100,8 @@ def misses_line(run: dict) -> str | None:
         parts.append(f"{sum(reasons.values())} without a pose: "
                      + "; ".join(f"{reason} ({n})" for reason, n in reasons.most_common(3))
                      + ("; …" if len(reasons) > 3 else ""))
-    return f"\n{run['label']} misses {wrong + sum(reasons.values())} frames: " + "; ".join(parts) + "."
+    missed = wrong + sum(reasons.values())
+    return f"\n{run['label']} misses {missed} frame{'s' if missed > 1 else ''}: " + "; ".join(parts) + "."
 
 
 def markdown_table(result: dict) -> str:
