@@ -30,6 +30,14 @@ demo: build ort
 ablations: build ort
 	./scripts/ablations.sh
 
+# angle-i2p's methods beside PoseLib's LO-RANSAC, one table per bag (scripts/side_by_side.py):
+# make side-by-side BAGS="../shared/data/redkitchen-hard-val …" [SIDE_BY_SIDE_ARGS="--method consistency …"]
+BAGS ?= bags/synth-sift bags/synth-hard bags/synth-extreme
+.PHONY: side-by-side
+side-by-side: build ort py-venv
+	$(VENV)/bin/python scripts/side_by_side.py $(BAGS) --out out/side-by-side \
+		--binary $(or $(CARGO_TARGET_DIR),target)/release/angle-i2p $(SIDE_BY_SIDE_ARGS)
+
 # All tests (unit, integration, Python-reader interop, evaluator agreement when ../shared is present).
 test: py-venv ort
 	ANGLE_I2P_PYTHON=$(abspath $(VENV))/bin/python $(CARGO) test --release --all-targets

@@ -1,0 +1,132 @@
+"""The side-by-side benchmark's verdicts and tables: a bag's tier, the acceptance criteria of
+issue 9 checked against PoseLib's row, and the markdown table printed per bag."""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import re
+
+CRITERIA_TEXT = {
+    "sift": "RR 100 %, MRE and MTE <= PoseLib's, median ms <= 1/2 PoseLib's",
+    "hard": "RR 100 %, MRE <= PoseLib's, median ms <= 1/2 PoseLib's",
+    "extreme": "RR >= 90 % with the shared prior, >= PoseLib's + 15 points with a realistic prior "
+               "(-harsh, -disparity), median ms <= 1/2 PoseLib's",
+}
+REALISTIC_PRIOR_SUFFIXES = ("-harsh", "-disparity")
+EXTREME_SHARED_PRIOR_RR = 90.0
+EXTREME_REALISTIC_MARGIN = 15.0
+MAX_TIME_RATIO = 0.5
+RR_EPSILON = 1e-9  # RR is 100·k/n: compared with a tolerance of float rounding
+
+
+@dataclasses.dataclass
+class Tier:
+    name: str  # sift, hard or extreme
+    realistic_prior: bool  # the bag's name ends in -harsh or -disparity
+
+    def describe(self) -> str:
+        return f"{self.name} tier, {'realistic' if self.realistic_prior else 'shared'} prior"
+
+
+def tier_of(name: str) -> Tier | None:
+    """The tier named in a bag's name (extreme before hard before sift), or None."""
+    lowered = name.lower()
+    for tier in ("extreme", "hard", "sift"):
+        if tier in lowered:
+            return Tier(tier, lowered.endswith(REALISTIC_PRIOR_SUFFIXES))
+    return None
+
+
+def time_ratio(summary: dict, poselib: dict) -> float | None:
+    ours, theirs = summary.get("median_ms"), poselib.get("median_ms")
+    return ours / theirs if ours is not None and theirs else None
+
+
+def at_most(ours: float | None, theirs: float | None) -> bool:
+    """ours <= theirs, where no value (no frame with a pose) is worst."""
+    if ours is None:
+        return theirs is None
+    return theirs is None or ours <= theirs
+
+
+def criteria_failures(tier: Tier | None, summary: dict, poselib: dict) -> list[str] | None:
+    """The criteria of the bag's tier that a row misses (empty: PASS), or None for a bag of no tier."""
+    if tier is None:
+        return None
+    failed = []
+    rr, pl_rr = summary["RR"], poselib["RR"]
+    if tier.name in ("sift", "hard") and rr < 100.0 - RR_EPSILON:
+        failed.append(f"RR {rr:.1f} < 100")
+    if tier.name == "extreme" and not tier.realistic_prior and rr < EXTREME_SHARED_PRIOR_RR - RR_EPSILON:
+        failed.append(f"RR {rr:.1f} < {EXTREME_SHARED_PRIOR_RR:.0f}")
+    if tier.name == "extreme" and tier.realistic_prior and rr < pl_rr + EXTREME_REALISTIC_MARGIN - RR_EPSILON:
+        failed.append(f"RR {rr:.1f} < PoseLib {pl_rr:.1f} + {EXTREME_REALISTIC_MARGIN:.0f}")
+    if tier.name in ("sift", "hard") and not at_most(summary.get("MRE"), poselib.get("MRE")):
+        failed.append(f"MRE {number(summary.get('MRE'), 3)} > PoseLib {number(poselib.get('MRE'), 3)}")
+    if tier.name == "sift" and not at_most(summary.get("MTE"), poselib.get("MTE")):
+        failed.append(f"MTE {number(summary.get('MTE'), 4)} > PoseLib {number(poselib.get('MTE'), 4)}")
+    ratio = time_ratio(summary, poselib)
+    if ratio is None:
+        failed.append("no time to compare")
+    elif ratio > MAX_TIME_RATIO:
+        failed.append(f"time x{ratio:.2f} > {MAX_TIME_RATIO}")
+    return failed
+
+
+def number(v: float | None, digits: int) -> str:
+    return "–" if v is None else f"{v:.{digits}f}"
+
+
+def verdict(failed: list[str] | None) -> str:
+    if failed is None:
+        return "– (no tier in the bag's name)"
+    return "PASS" if not failed else "FAIL: " + "; ".join(failed)
+
+
+def failure_counts(frames: list[dict]) -> collections.Counter:
+    """Frames without a pose, by reason with its numbers as # (a pose is no failure, even when it is not registered)."""
+    return collections.Counter(re.sub(r"\d+(\.\d+)?", "#", f["failure"] or "no pose")
+                               for f in frames if not f["has_pose"])
+
+
+def misses_line(run: dict) -> str | None:
+    """The frames a row did not register: how many have a wrong pose, and why the others have none."""
+    wrong = sum(1 for f in run["frames"] if f["has_pose"] and not f["registered"])
+    reasons = failure_counts(run["frames"])
+    if not wrong and not reasons:
+        return None
+    parts = [f"{wrong} with a wrong pose (RMSE >= 0.1 m)"] if wrong else []
+    if reasons:
+        parts.append(f"{sum(reasons.values())} without a pose: "
+                     + "; ".join(f"{reason} ({n})" for reason, n in reasons.most_common(3))
+                     + ("; …" if len(reasons) > 3 else ""))
+    missed = wrong + sum(reasons.values())
+    return f"\n{run['label']} misses {missed} frame{'s' if missed > 1 else ''}: " + "; ".join(parts) + "."
+
+
+def markdown_table(result: dict) -> str:
+    """One bag's table: a row per replayed method, then PoseLib's."""
+    tier = Tier(**result["tier"]) if result["tier"] else None
+    poselib = result["poselib"]["summary"]
+    frames = poselib["frames"]
+    rounds = poselib.get("timing_rounds", 1)
+    timing = f"; times: per-frame median of {rounds} rounds" if rounds > 1 else ""
+    lines = [f"### {result['name']} ({tier.describe() if tier else 'no tier'}; {frames} frames{timing})", "",
+             "| method | RR % | MRE ° | MTE m | median ms | time / PoseLib | verdict |",
+             "|---|---|---|---|---|---|---|"]
+    for r in result["runs"]:
+        s = r["summary"]
+        lines.append(f"| {r['label']} | {s['RR']:.1f} | {number(s.get('MRE'), 3)} | {number(s.get('MTE'), 4)} | "
+                     f"{number(s.get('median_ms'), 2)} | {number(time_ratio(s, poselib), 2)} | "
+                     f"{verdict(r['failed_criteria'])} |")
+    lines.append(f"| {result['poselib']['label']} | {poselib['RR']:.1f} | {number(poselib.get('MRE'), 3)} | "
+                 f"{number(poselib.get('MTE'), 4)} | {number(poselib.get('median_ms'), 2)} | 1.00 | – |")
+    lines += [line for r in [*result["runs"], result["poselib"]] if (line := misses_line(r))]
+    if result["read_issues"]:
+        lines.append(f"\n{len(result['read_issues'])} input messages could not be read, e.g. {result['read_issues'][0]}.")
+    mismatched = [r["label"] for r in result["runs"] if r["summary"].get("frames") != frames]
+    if mismatched:
+        lines.append(f"\nNote: eval scored a different number of frames than PoseLib for {', '.join(mismatched)}.")
+    if tier:
+        lines.append(f"\nCriteria ({tier.name}): {CRITERIA_TEXT[tier.name]}.")
+    return "\n".join(lines) + "\n"
