@@ -89,9 +89,15 @@ fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
     bad_k.intrinsics.fx = 0.0;
     assert_eq!(localizer.process(&bad_k).failure, Some(Failure::InvalidIntrinsics));
 
+    // Without a prior an easy frame is still settled by the cascade's fast path; the rejector,
+    // which needs the prior, says so when it has to run.
     let mut no_prior = scene.frames[0].clone();
     no_prior.depth_prior = None;
     let loc = localizer.process(&no_prior);
+    assert!(loc.fast_path && loc.pose.is_some() && loc.prior_quality.is_none(), "{:?}", loc.failure);
+    let mut full_path_only = Params::default();
+    full_path_only.cascade.enabled = false;
+    let loc = Localizer::new(full_path_only).process(&no_prior);
     assert!(matches!(loc.failure, Some(Failure::Rejection(_))), "{:?}", loc.failure);
     assert!(loc.failure.unwrap().to_string().contains("depth prior"));
 
