@@ -51,7 +51,7 @@ impl Default for VerifyParams {
             min_view: 0.25,
             settle_checks: 2,
             max_iterations: 10_000,
-            min_trust: 0.5,
+            min_trust: 0.7,
             max_map_points: 10_000,
             cell_px: 32.0,
             tolerance: 0.1,
