@@ -201,7 +201,7 @@ impl Localizer {
             return false;
         }
         let t = Instant::now();
-        let settled = p.cascade.settle(frame, &p.pnp, p.seed);
+        let settled = p.cascade.settle(frame, &p.pnp.for_camera(frame.intrinsics.fx), p.seed);
         out.timings.fast_path_ms = ms_since(t);
         let mut solution = match settled {
             Ok(solution) => solution,
@@ -272,8 +272,8 @@ impl Localizer {
             prior_space: geometry.prior_space,
             verification: verifier.as_ref().map(|v| self.params.verify.verification(v)),
         };
-        let solved =
-            solve_pnp_ransac_guided(&frame.intrinsics, &pixels, &points, &guidance, &self.params.pnp, self.params.seed);
+        let pnp = self.params.pnp.for_camera(frame.intrinsics.fx);
+        let solved = solve_pnp_ransac_guided(&frame.intrinsics, &pixels, &points, &guidance, &pnp, self.params.seed);
         let with_scores = |r: &crate::reject::Rejection| -> Vec<Correspondence> {
             subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect()
         };
@@ -328,8 +328,10 @@ impl Localizer {
     /// it within the frame's own noise sharpens it in a last LM ([`FinalRefine`]).
     fn refine_on_all(&self, frame: &Frame, solution: &mut PnpSolution) {
         let min_count = self.params.pnp.min_inliers.max(4);
-        let threshold = self.params.pnp.threshold_px;
-        self.params.final_refine.apply(&frame.intrinsics, &frame.correspondences, threshold, min_count, solution);
+        let pnp = &self.params.pnp;
+        let threshold = pnp.for_camera(frame.intrinsics.fx).threshold_px;
+        let scale = threshold / pnp.threshold_px;
+        self.params.final_refine.apply(&frame.intrinsics, &frame.correspondences, threshold, scale, min_count, solution);
     }
 
     fn validate(&self, frame: &Frame) -> Result<(), Failure> {

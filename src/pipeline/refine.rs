@@ -15,8 +15,9 @@ pub struct FinalRefine {
     pub enabled: bool,
     /// A correspondence joins when its reprojection error is below `noise_multiple`·σ̂, where σ̂
     /// is the pixel noise estimated from the pose's PnP inliers (median residual / 1.1774, the
-    /// Rayleigh median), clamped to [`min_threshold_px`, `max_threshold_px`]. In pixels, so it
-    /// holds at any depth range; adaptive, so it follows the matcher's accuracy.
+    /// Rayleigh median), clamped to [`min_threshold_px`, `max_threshold_px`] (at PnP's reference
+    /// focal length, scaled with it). In pixels, so it holds at any depth range; adaptive, so it
+    /// follows the matcher's accuracy.
     pub noise_multiple: f64,
     pub min_threshold_px: f64,
     pub max_threshold_px: f64,
@@ -44,13 +45,15 @@ const RAYLEIGH_MEDIAN: f64 = 1.177_410_022_515_474_7;
 
 impl FinalRefine {
     /// Refines `solution` in place on the `correspondences` within the adaptive tolerance of
-    /// its pose; `inlier_threshold_px` is PnP's, which defines the inliers σ̂ is measured on.
+    /// its pose; `inlier_threshold_px` is PnP's, which defines the inliers σ̂ is measured on, and
+    /// `pixel_scale` scales the clamp's pixel bounds as PnP's are ([`crate::pnp::PnpParams::for_camera`]).
     /// Leaves it unchanged when fewer than `min_count` agree or the refinement fails.
     pub fn apply(
         &self,
         k: &Intrinsics,
         correspondences: &[Correspondence],
         inlier_threshold_px: f64,
+        pixel_scale: f64,
         min_count: usize,
         solution: &mut PnpSolution,
     ) {
@@ -70,7 +73,8 @@ impl FinalRefine {
         let mid = inlier_residuals.len() / 2;
         let (_, median, _) = inlier_residuals.select_nth_unstable_by(mid, f64::total_cmp);
         let sigma = *median / RAYLEIGH_MEDIAN;
-        let threshold = (self.noise_multiple * sigma).clamp(self.min_threshold_px, self.max_threshold_px);
+        let (lo, hi) = (self.min_threshold_px * pixel_scale, self.max_threshold_px * pixel_scale);
+        let threshold = (self.noise_multiple * sigma).max(lo).min(hi);
         let agreeing: Vec<&Correspondence> =
             correspondences.iter().zip(&residuals).filter(|(_, &r)| r < threshold).map(|(c, _)| c).collect();
         if agreeing.len() < min_count {

@@ -100,6 +100,28 @@ pub struct PnpParams {
     /// With coverage scoring and prior depths ([`solve_pnp_ransac_with_prior`]): an inlier
     /// counts only if its depth is within this share of the prior's (affinely mapped); 0: off.
     pub prior_tolerance: f64,
+    /// The focal length (px) that the pixel sizes above are meant for: [`PnpParams::for_camera`]
+    /// scales `threshold_px`, `loss_scale_px` and `coverage_cell_px` by fx / this when fx is
+    /// longer, so that they keep their angle (8 px at 525 px ≈ 0.87°): a map's metric error
+    /// projects to more pixels at a longer focal length. They are never scaled down: the
+    /// matcher's own pixel error does not shrink with a shorter one. 0: as they are.
+    pub reference_focal_px: f64,
+}
+
+impl PnpParams {
+    /// These parameters for a camera of focal length `fx` (see `reference_focal_px`).
+    pub fn for_camera(&self, fx: f64) -> PnpParams {
+        let scale = fx / self.reference_focal_px;
+        if !(self.reference_focal_px > 0.0 && scale.is_finite() && scale > 1.0) {
+            return self.clone();
+        }
+        PnpParams {
+            threshold_px: self.threshold_px * scale,
+            loss_scale_px: self.loss_scale_px * scale,
+            coverage_cell_px: self.coverage_cell_px * scale,
+            ..self.clone()
+        }
+    }
 }
 
 impl Default for PnpParams {
@@ -116,6 +138,7 @@ impl Default for PnpParams {
             loss_scale_px: 2.0,
             coverage_cell_px: 32.0,
             prior_tolerance: 0.2,
+            reference_focal_px: 525.0,
         }
     }
 }
