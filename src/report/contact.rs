@@ -19,7 +19,9 @@ const TILE_WIDTH: u32 = 320;
 const GAP: u32 = 12;
 const HEADER: u32 = 58;
 const ROW_TITLE: u32 = 28;
-const CAPTION: u32 = 56;
+const CAPTION: u32 = 74;
+/// Characters per caption line.
+const LINE_CHARS: usize = 46;
 pub const RING: RGBColor = RGBColor(0, 180, 255);
 const RING_RADIUS: i32 = 5;
 
@@ -151,23 +153,53 @@ fn caption(t: &Tile, t0: i64) -> Vec<String> {
     let s = t.scored;
     let seconds = (s.metrics.stamp - t0) as f64 * 1e-9;
     let mut lines = vec![format!("frame {} · t = {seconds:.2} s", s.frame_index)];
-    lines.push(match (s.outcome(), s.metrics.errors) {
+    match (s.outcome(), s.metrics.errors) {
         (Outcome::NoPose, _) | (_, None) => {
             let reason = s.record.failure.as_deref().unwrap_or("none in the output bag");
-            let short: String = reason.chars().take(42).collect();
-            format!("no pose: {short}")
+            lines.extend(wrap(&format!("no pose: {reason}"), LINE_CHARS, 2));
         }
-        (_, Some(e)) => format!("RMSE {:.3} m · {:.2}° · {:.3} m", e.rmse_m, e.rotation_deg, e.translation_m),
-    });
+        (_, Some(e)) => {
+            lines.push(format!("RMSE {:.3} m · {:.2}° · {:.3} m", e.rmse_m, e.rotation_deg, e.translation_m))
+        }
+    }
     lines.push(match &t.note {
-        Some(note) => note.chars().take(48).collect(),
-        None => format!(
-            "kept {} ({} true) · true inliers ringed: {}",
-            s.record.kept.len(),
-            s.true_inliers_kept,
-            t.rings.len()
-        ),
+        Some(note) => note.chars().take(LINE_CHARS).collect(),
+        None => {
+            format!("kept {} ({} true inliers) · {} ringed", s.record.kept.len(), s.true_inliers_kept, t.rings.len())
+        }
     });
+    lines
+}
+
+/// `text` in at most `max_lines` lines of at most `width` characters, broken at spaces; what
+/// does not fit ends in `…`.
+fn wrap(text: &str, width: usize, max_lines: usize) -> Vec<String> {
+    let mut lines: Vec<String> = Vec::new();
+    let mut current = String::new();
+    for word in text.split_whitespace() {
+        let fits = current.chars().count() + 1 + word.chars().count() <= width;
+        if !current.is_empty() && !fits {
+            lines.push(std::mem::take(&mut current));
+        }
+        if !current.is_empty() {
+            current.push(' ');
+        }
+        current.push_str(word);
+    }
+    if !current.is_empty() {
+        lines.push(current);
+    }
+    if lines.len() > max_lines {
+        lines.truncate(max_lines);
+        if let Some(last) = lines.last_mut() {
+            last.push('…');
+        }
+    }
+    for line in &mut lines {
+        if line.chars().count() > width + 1 {
+            *line = line.chars().take(width).chain(['…']).collect();
+        }
+    }
     lines
 }
 
@@ -184,6 +216,14 @@ mod tests {
             record: Default::default(),
             true_inliers_kept: 0,
         }
+    }
+
+    #[test]
+    fn captions_wrap_at_spaces() {
+        assert_eq!(wrap("no pose: PnP failed", 12, 2), ["no pose: PnP", "failed"]);
+        assert_eq!(wrap("a b c d e f", 3, 2), ["a b", "c d…"]);
+        assert_eq!(wrap("abcdefghij", 4, 2), ["abcd…"]);
+        assert!(wrap("", 4, 2).is_empty());
     }
 
     #[test]

@@ -57,7 +57,7 @@ pub fn method_colour(index: usize) -> RGBColor {
 pub fn write_png_and_svg(figure: &impl Figure, dir: &Path, stem: &str) -> Result<[String; 2], ReportError> {
     let draw_error = |e: &dyn std::fmt::Display| ReportError::Draw { figure: stem.to_string(), message: e.to_string() };
     let png = format!("{stem}.png");
-    save_png(&render_bitmap(figure).map_err(|e| draw_error(&e))?, &dir.join(&png))?;
+    save_png(&render_bitmap(figure).map_err(|e| draw_error(&e))?, &dir.join(&png), Compression::Small)?;
     let svg = format!("{stem}.svg");
     let mut text = String::new();
     {
@@ -83,9 +83,26 @@ pub fn render_bitmap(figure: &impl Figure) -> Result<RgbImage, String> {
     RgbImage::from_raw(w, h, buffer).ok_or_else(|| format!("a {w}×{h} buffer of the wrong size"))
 }
 
-pub fn save_png(img: &RgbImage, path: &Path) -> Result<(), ReportError> {
-    img.save_with_format(path, image::ImageFormat::Png)
-        .map_err(|e| ReportError::Encode { path: path.to_path_buf(), message: e.to_string() })
+/// How hard the PNG encoder works: plots shrink a lot with [`Compression::Small`], photos hardly.
+#[derive(Clone, Copy, Debug)]
+pub enum Compression {
+    Small,
+    Fast,
+}
+
+pub fn save_png(img: &RgbImage, path: &Path, compression: Compression) -> Result<(), ReportError> {
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    use image::ImageEncoder;
+    let encode_error = |message: String| ReportError::Encode { path: path.to_path_buf(), message };
+    let mut bytes = Vec::new();
+    let (level, filter) = match compression {
+        Compression::Small => (CompressionType::Best, FilterType::Adaptive),
+        Compression::Fast => (CompressionType::Fast, FilterType::Sub),
+    };
+    PngEncoder::new_with_quality(&mut bytes, level, filter)
+        .write_image(img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgb8)
+        .map_err(|e| encode_error(e.to_string()))?;
+    std::fs::write(path, bytes).map_err(|source| ReportError::Io { path: path.to_path_buf(), source })
 }
 
 /// A value range that plots well: `lo..hi` padded by `pad` of its span, never empty.

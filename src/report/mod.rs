@@ -92,7 +92,7 @@ pub fn write_report(input: &ReportInput, dir: &Path) -> Result<ReportFiles, Repo
         written.extend(figure::write_png_and_svg(&timeline, dir, &stem)?);
         let sheet_name = format!("{stem}-sheet.png");
         let sheet = contact::contact_sheet(input.bag, run, index)?;
-        figure::save_png(&sheet, &dir.join(&sheet_name))?;
+        figure::save_png(&sheet, &dir.join(&sheet_name), figure::Compression::Fast)?;
         written.push(sheet_name.clone());
         pages.push(html::RunFiles {
             timeline: format!("{stem}.png"),

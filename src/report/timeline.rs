@@ -237,3 +237,59 @@ fn legend<'a, DB: DrawingBackend + 'a>(chart: &mut Chart<'a, DB>) -> DrawResult<
         .label_font((FONT, 13))
         .draw()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::{FrameMetrics, PoseErrors, Summary};
+    use crate::report::data::{FrameRecord, ScoredFrame, StageMs};
+    use crate::report::figure::{register_font, render_bitmap};
+
+    fn run(prior_quality: Option<f64>) -> ScoredRun {
+        let frame = |k: usize, rmse: Option<f64>, failure: Option<&str>| ScoredFrame {
+            frame_index: k,
+            metrics: FrameMetrics {
+                stamp: k as i64,
+                inlier_ratio: 0.5,
+                errors: rmse.map(|r| PoseErrors { rotation_deg: 1.0, translation_m: r, rmse_m: r }),
+                ms: Some(3.0),
+            },
+            record: FrameRecord {
+                stages: Some(StageMs { geometry: 1.0, reject: 1.0, pnp: 0.5, total: 3.0 }),
+                kept_count: Some(40),
+                pnp_inliers: Some(20),
+                prior_quality,
+                failure: failure.map(str::to_string),
+                ..Default::default()
+            },
+            true_inliers_kept: 18,
+        };
+        ScoredRun {
+            label: "m".into(),
+            summary: Summary::default(),
+            frames: vec![
+                frame(0, Some(0.01), None),
+                frame(1, Some(0.5), None),
+                frame(2, None, Some("PnP failed: 3 < 6")),
+                frame(3, None, Some("PnP failed: 2 < 6")),
+            ],
+            unscored_failures: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn outcomes_are_coloured_and_the_prior_panel_only_when_reported() {
+        register_font().unwrap();
+        let without = run(None);
+        let with = run(Some(0.7));
+        let (plain, prior) = (Timeline::new(&without, 0), Timeline::new(&with, 0));
+        assert_eq!(plain.reason_counts(), [("PnP failed: # < #".to_string(), 2)]);
+        assert_eq!(prior.size().1, plain.size().1 + PANEL_HEIGHT);
+        let img = render_bitmap(&plain).unwrap();
+        for colour in [REGISTERED, WRONG_POSE, NO_POSE] {
+            let n = img.pixels().filter(|p| p.0 == [colour.0, colour.1, colour.2]).count();
+            assert!(n > 1000, "{colour:?}: {n} pixels");
+        }
+        assert!(render_bitmap(&prior).is_ok());
+    }
+}
