@@ -165,7 +165,12 @@ fn caption(t: &Tile, t0: i64) -> Vec<String> {
     lines.push(match &t.note {
         Some(note) => note.chars().take(LINE_CHARS).collect(),
         None => {
-            format!("kept {} ({} true inliers) · {} ringed", s.record.kept.len(), s.true_inliers_kept, t.rings.len())
+            format!(
+                "kept {}, {} of them true · true in all: {} (ringed)",
+                s.record.kept.len(),
+                s.true_inliers_kept,
+                t.rings.len()
+            )
         }
     });
     lines

@@ -17,7 +17,8 @@ pub struct RunFiles {
 
 const STYLE: &str = "body{font-family:sans-serif;max-width:1400px;margin:1em auto;padding:0 1em;color:#222}\
 table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}\
-th:first-child,td:first-child{text-align:left}img{max-width:100%;border:1px solid #ddd}\
+th:first-child,td:first-child{text-align:left}\
+.failures td:last-child{text-align:left}img{max-width:100%;border:1px solid #ddd}\
 .swatch{display:inline-block;width:0.9em;height:0.9em;margin-right:0.4em;vertical-align:middle}\
 details{margin:0.5em 0}figure{margin:1em 0}figcaption{color:#555;font-size:0.9em}";
 
@@ -156,7 +157,7 @@ fn failures(run: &super::data::ScoredRun) -> String {
         }
     );
     if !missed.is_empty() || !run.unscored_failures.is_empty() {
-        out += "<table><tr><th>frame</th><th>stamp (ns)</th><th>outcome</th></tr>\n";
+        out += "<table class=\"failures\"><tr><th>frame</th><th>stamp (ns)</th><th>outcome</th></tr>\n";
         for f in missed {
             let what = match (f.metrics.errors, &f.record.failure) {
                 (Some(e), _) => format!("RMSE {:.3} m, {:.2}°, {:.3} m", e.rmse_m, e.rotation_deg, e.translation_m),

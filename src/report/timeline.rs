@@ -127,17 +127,18 @@ impl Timeline<'_> {
         let top = kept.iter().chain(&pnp).chain(&truth).fold(0.0f64, |a, b| a.max(*b)).max(1.0) * 1.5;
         let mut chart = panel(area, self.frames(), 0.0..top)?;
         mesh(&mut chart, "correspondences")?;
-        let series: [(&str, &Vec<f64>, RGBColor); 3] = [
-            ("kept", &kept, self.colour),
-            ("PnP inliers", &pnp, BLACK),
-            ("true inliers among kept (ground truth, 5 cm)", &truth, REGISTERED),
+        // Kept is drawn widest, under the others: with `ransac` it equals the PnP inliers.
+        let series: [(&str, &Vec<f64>, RGBColor, u32); 3] = [
+            ("kept", &kept, self.colour, 5),
+            ("PnP inliers", &pnp, BLACK, 2),
+            ("true inliers among kept (ground truth, 5 cm)", &truth, REGISTERED, 2),
         ];
-        for (name, values, colour) in series {
+        for (name, values, colour, width) in series {
             let points = values.iter().enumerate().map(|(k, v)| (k as f64, *v));
             chart
-                .draw_series(LineSeries::new(points.clone(), colour.stroke_width(2)))?
+                .draw_series(LineSeries::new(points.clone(), colour.stroke_width(width)))?
                 .label(name)
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], colour.stroke_width(2)));
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], colour.stroke_width(width)));
             chart.draw_series(points.map(|p| Circle::new(p, 2, colour.filled())))?;
         }
         legend(&mut chart)

@@ -128,9 +128,9 @@ impl Figure for Trajectory {
             .draw_series(LineSeries::new(self.truth.iter().map(|p| (p[0], p[1])), BLACK.stroke_width(2)))?
             .label("ground truth")
             .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLACK.stroke_width(2)));
-        // The first method's (smallest) markers last, on top of the others'.
-        for (i, m) in self.methods.iter().enumerate().rev() {
-            self.draw_method(&mut chart, m, i)?;
+        // Later methods' markers are smaller and drawn over the earlier ones', so all show.
+        for (i, m) in self.methods.iter().enumerate() {
+            self.draw_method(&mut chart, m, 3 + (self.methods.len() - 1 - i) as i32)?;
         }
         chart
             .configure_series_labels()
@@ -151,10 +151,9 @@ impl Trajectory {
             Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
         >,
         m: &MethodPath,
-        index: usize,
+        size: i32,
     ) -> DrawResult<DB> {
         let colour = m.colour;
-        let size = 3 + index as i32;
         let count = |o: Outcome| m.frames.iter().filter(|f| f.2 == o).count();
         let wrong: Vec<([f64; 2], [f64; 2])> =
             m.frames.iter().filter(|f| f.2 == Outcome::WrongPose).filter_map(|f| Some((f.0, f.1?))).collect();
