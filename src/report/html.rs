@@ -65,9 +65,9 @@ pub fn page(input: &ReportInput, scored: &ScoredRuns, files: &[RunFiles]) -> Str
     );
     for ((run, f), index) in scored.runs.iter().zip(files).zip(0..) {
         let colour = method_colour(index);
-        let _ = write!(
+        let _ = writeln!(
             html,
-            "<h2><span class=\"swatch\" style=\"background:rgb({},{},{})\"></span>{}</h2>\n",
+            "<h2><span class=\"swatch\" style=\"background:rgb({},{},{})\"></span>{}</h2>",
             colour.0,
             colour.1,
             colour.2,
@@ -95,9 +95,9 @@ pub fn page(input: &ReportInput, scored: &ScoredRuns, files: &[RunFiles]) -> Str
 
 fn figure(html: &mut String, src: &str, link: &str, caption: &str) {
     let (src, link) = (escape(src), escape(link));
-    let _ = write!(
+    let _ = writeln!(
         html,
-        "<figure><a href=\"{link}\"><img src=\"{src}\" alt=\"{src}\"></a><figcaption>{}</figcaption></figure>\n",
+        "<figure><a href=\"{link}\"><img src=\"{src}\" alt=\"{src}\"></a><figcaption>{}</figcaption></figure>",
         escape(caption)
     );
 }
@@ -108,10 +108,10 @@ fn table(raw: &Summary, scored: &ScoredRuns) -> String {
         "<table><tr><th>method</th><th>frames</th><th>IR %</th><th>RR %</th><th>MRE °</th><th>MTE m</th>\
          <th>MedRE °</th><th>MedTE m</th><th>ms/frame</th></tr>\n",
     );
-    let _ = write!(
+    let _ = writeln!(
         out,
         "<tr><td>raw matches (IR only)</td><td>{}</td><td>{:.2}</td><td>–</td><td>–</td><td>–</td><td>–</td>\
-         <td>–</td><td>–</td></tr>\n",
+         <td>–</td><td>–</td></tr>",
         raw.frames, raw.ir
     );
     for (index, run) in scored.runs.iter().enumerate() {
@@ -121,10 +121,10 @@ fn table(raw: &Summary, scored: &ScoredRuns) -> String {
             (Some(med), Some(mean)) => format!("{med:.2} ({mean:.2})"),
             _ => "–".into(),
         };
-        let _ = write!(
+        let _ = writeln!(
             out,
             "<tr><td><span class=\"swatch\" style=\"background:rgb({},{},{})\"></span>{}</td><td>{}</td>\
-             <td>{:.2}</td><td>{:.2}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>\n",
+             <td>{:.2}</td><td>{:.2}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
             c.0,
             c.1,
             c.2,
@@ -164,16 +164,16 @@ fn failures(run: &super::data::ScoredRun) -> String {
                 (None, Some(reason)) => format!("no pose: {reason}"),
                 (None, None) => "no pose in the output bag".to_string(),
             };
-            let _ = write!(
+            let _ = writeln!(
                 out,
-                "<tr><td>{}</td><td>{}</td><td>{}</td></tr>\n",
+                "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",
                 f.frame_index,
                 f.metrics.stamp,
                 escape(&what)
             );
         }
         for (stamp, reason) in &run.unscored_failures {
-            let _ = write!(out, "<tr><td>–</td><td>{stamp}</td><td>{}</td></tr>\n", escape(reason));
+            let _ = writeln!(out, "<tr><td>–</td><td>{stamp}</td><td>{}</td></tr>", escape(reason));
         }
         out += "</table>\n";
     }

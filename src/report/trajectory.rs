@@ -23,8 +23,14 @@ const PLOT_AREA: (f64, f64) = (900.0 - 70.0 - 30.0, 820.0 - 50.0 - 50.0 - 30.0);
 struct MethodPath {
     label: String,
     colour: RGBColor,
-    /// (true position, estimated position or none, outcome).
-    frames: Vec<([f64; 2], Option<[f64; 2]>, Outcome)>,
+    frames: Vec<FramePosition>,
+}
+
+/// Where one frame is, in the plotted plane.
+struct FramePosition {
+    truth: [f64; 2],
+    estimate: Option<[f64; 2]>,
+    outcome: Outcome,
 }
 
 pub struct Trajectory {
@@ -65,7 +71,11 @@ impl Trajectory {
                     .frames
                     .iter()
                     .zip(&truth)
-                    .map(|(f, t)| (*t, f.record.pose.map(|p| flat(&p.translation.vector.into())), f.outcome()))
+                    .map(|(f, t)| FramePosition {
+                        truth: *t,
+                        estimate: f.record.pose.map(|p| flat(&p.translation.vector.into())),
+                        outcome: f.outcome(),
+                    })
                     .collect(),
             })
             .collect();
@@ -154,9 +164,13 @@ impl Trajectory {
         size: i32,
     ) -> DrawResult<DB> {
         let colour = m.colour;
-        let count = |o: Outcome| m.frames.iter().filter(|f| f.2 == o).count();
-        let wrong: Vec<([f64; 2], [f64; 2])> =
-            m.frames.iter().filter(|f| f.2 == Outcome::WrongPose).filter_map(|f| Some((f.0, f.1?))).collect();
+        let count = |o: Outcome| m.frames.iter().filter(|f| f.outcome == o).count();
+        let wrong: Vec<([f64; 2], [f64; 2])> = m
+            .frames
+            .iter()
+            .filter(|f| f.outcome == Outcome::WrongPose)
+            .filter_map(|f| Some((f.truth, f.estimate?)))
+            .collect();
         chart.draw_series(
             wrong.iter().map(|(t, e)| PathElement::new([(t[0], t[1]), (e[0], e[1])], colour.mix(0.6).stroke_width(1))),
         )?;
@@ -164,8 +178,8 @@ impl Trajectory {
             .draw_series(
                 m.frames
                     .iter()
-                    .filter(|f| f.2 == Outcome::Registered)
-                    .filter_map(|f| f.1)
+                    .filter(|f| f.outcome == Outcome::Registered)
+                    .filter_map(|f| f.estimate)
                     .map(|e| Circle::new((e[0], e[1]), size, colour.filled())),
             )?
             .label(format!("{}: registered ({})", m.label, count(Outcome::Registered)))
@@ -178,8 +192,8 @@ impl Trajectory {
             .draw_series(
                 m.frames
                     .iter()
-                    .filter(|f| f.2 == Outcome::NoPose)
-                    .map(|f| Cross::new((f.0[0], f.0[1]), size + 3, colour.stroke_width(2))),
+                    .filter(|f| f.outcome == Outcome::NoPose)
+                    .map(|f| Cross::new((f.truth[0], f.truth[1]), size + 3, colour.stroke_width(2))),
             )?
             .label(format!("{}: no pose, at true position ({})", m.label, count(Outcome::NoPose)))
             .legend(move |(x, y)| Cross::new((x + 8, y), size + 3, colour.stroke_width(2)));
