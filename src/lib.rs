@@ -20,5 +20,6 @@ pub mod pipeline;
 pub mod play;
 pub mod pnp;
 pub mod reject;
+pub mod report;
 pub mod synth;
 pub mod verify;

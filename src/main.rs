@@ -60,6 +60,9 @@ enum Command {
         json: bool,
         #[arg(long)]
         params_file: Option<PathBuf>,
+        /// Also write plots and an `index.html` with the table into this directory.
+        #[arg(long)]
+        report: Option<PathBuf>,
     },
     /// Write training samples for the learned rejector (features, graphs, θ, labels) from a bag
     /// with ground truth: one folder of `.npy` arrays per frame.
@@ -147,6 +150,29 @@ fn load_params_with(path: Option<&Path>, overrides: &[String]) -> Result<Params>
     let args = angle_i2p::node::RosArgs::parse(&tokens)?;
     let names = angle_i2p::node::Names::new("angle_i2p", &args);
     Ok(angle_i2p::node::resolve_params(path, &args, &names)?.params)
+}
+
+/// `eval --report DIR`: the evaluations' plots and page (see `angle_i2p::report`).
+fn write_report(
+    bag: &Path,
+    input: &angle_i2p::bag::BagFrames,
+    params: &Params,
+    raw: &angle_i2p::eval::Summary,
+    evaluations: &[app::Evaluation],
+    est: &[PathBuf],
+    dir: &Path,
+) -> Result<()> {
+    use angle_i2p::report::{MethodRun, ReportInput};
+    let runs = evaluations
+        .iter()
+        .zip(est)
+        .map(|(ev, e)| MethodRun { label: ev.method.clone(), est: e.clone(), evaluation: ev })
+        .collect();
+    let report_input = ReportInput { bag_path: bag, bag: input, topics: &params.topics, raw, runs };
+    let files = angle_i2p::report::write_report(&report_input, dir)
+        .with_context(|| format!("writing the report into {}", dir.display()))?;
+    eprintln!("report: {} files → {}", files.files.len(), dir.join("index.html").display());
+    Ok(())
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -274,7 +300,7 @@ fn run(cli: Cli) -> Result<()> {
             print!("{}", serde_yaml::to_string(&doc)?);
             Ok(())
         }
-        Command::Eval { bag, est, json, params_file } => {
+        Command::Eval { bag, est, json, params_file, report } => {
             let params = load_params(params_file.as_deref())?;
             let input = read_frames(&bag, &params.topics)?;
             let mut rows = vec![("raw matches (IR only)".to_string(), app::raw_inlier_ratio(&input))];
@@ -303,6 +329,9 @@ fn run(cli: Cli) -> Result<()> {
             } else {
                 println!("{}", bag.display());
                 print!("{}", format_table(&rows));
+            }
+            if let Some(dir) = report {
+                write_report(&bag, &input, &params, &rows[0].1, &evaluations, &est, &dir)?;
             }
             Ok(())
         }
