@@ -24,7 +24,7 @@ demo: build ort
 	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo-angle-i2p --method angle-i2p
 	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo-consistency --method consistency
 	./target/release/angle-i2p replay $(DEMO_BAG) --out out/demo-ransac --method ransac
-	./target/release/angle-i2p eval $(DEMO_BAG) --est out/demo-angle-i2p --est out/demo-consistency --est out/demo-ransac
+	./target/release/angle-i2p eval $(DEMO_BAG) --est out/demo-angle-i2p --est out/demo-consistency --est out/demo-ransac --report out/demo-report
 
 # The paper's ablations on the shared validation bags, each scored by eval (needs ../shared/data).
 ablations: build ort
