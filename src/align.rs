@@ -94,10 +94,14 @@ impl Default for ScaleShiftParams {
     }
 }
 
-/// One voting pair: its rays, prior coordinates and map length.
+/// One voting pair: its rays, prior coordinates and map length, and for depth space the terms
+/// of its image length as a quadratic in the shift.
 struct PairTerms {
     ri: Vector3<f64>,
     rj: Vector3<f64>,
+    aa: f64,
+    ab: f64,
+    bb: f64,
     xi: f64,
     xj: f64,
     log_map_len2: f64,
@@ -150,12 +154,19 @@ pub fn estimate_scale_shift(
         .iter()
         .zip(&map_len)
         .filter(|(_, &len)| len >= min_len && len > 0.0)
-        .map(|(&(i, j), &len)| PairTerms {
-            ri: rays[i as usize],
-            rj: rays[j as usize],
-            xi: prior[i as usize],
-            xj: prior[j as usize],
-            log_map_len2: (len * len).ln(),
+        .map(|(&(i, j), &len)| {
+            let (ri, rj, xi, xj) = (rays[i as usize], rays[j as usize], prior[i as usize], prior[j as usize]);
+            let (a, b) = (ri * xi - rj * xj, ri - rj);
+            PairTerms {
+                ri,
+                rj,
+                aa: a.norm_squared(),
+                ab: a.dot(&b),
+                bb: b.norm_squared(),
+                xi,
+                xj,
+                log_map_len2: (len * len).ln(),
+            }
         })
         .collect();
 
@@ -164,9 +175,12 @@ pub fn estimate_scale_shift(
         votes.clear();
         for c in &terms {
             let (Some(ui), Some(uj)) = (unit_depth(space, c.xi, t), unit_depth(space, c.xj, t)) else { continue };
-            // The difference of the two lifted points, not of their squared norms: neighbouring
-            // pixels have nearly equal rays, and expanding the square would cancel digits.
-            let img_len2 = (c.ri * ui - c.rj * uj).norm_squared();
+            let img_len2 = match space {
+                // ‖a + t·b‖², a = r_i x_i − r_j x_j and b = r_i − r_j formed once (in f64: the
+                // difference of neighbouring pixels' rays is small, and its digits must survive).
+                PriorSpace::Depth => c.aa + t * (2.0 * c.ab + t * c.bb),
+                PriorSpace::Disparity => (c.ri * ui - c.rj * uj).norm_squared(),
+            };
             if img_len2 > 1e-18 {
                 // log(scale) = ½·(log ‖q_i − q_j‖² − log ‖o_i − o_j‖²)
                 votes.add(0.5 * (c.log_map_len2 - img_len2.ln()));

@@ -21,6 +21,8 @@ pub struct VerifyParams {
     /// candidates while none agrees with the prior in `accept` of what the map covers in view
     /// (at least `min_view` of the image) …
     pub min_iterations: usize,
+    /// … verified again every this many hypotheses …
+    pub check_every: usize,
     pub accept: f64,
     pub min_view: f64,
     /// … and the choice changed in the last `settle_checks` verifications …
@@ -47,6 +49,7 @@ impl Default for VerifyParams {
             enabled: true,
             candidates: 12,
             min_iterations: 1000,
+            check_every: 500,
             accept: 0.7,
             min_view: 0.25,
             settle_checks: 2,
@@ -68,6 +71,7 @@ impl VerifyParams {
             candidates: self.candidates,
             coverage_weight: self.coverage_weight,
             min_iterations: self.min_iterations,
+            check_every: self.check_every,
             accept: self.accept,
             min_view: self.min_view,
             settle_checks: self.settle_checks,

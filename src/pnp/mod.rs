@@ -185,11 +185,13 @@ pub struct Verification<'a> {
     pub candidates: usize,
     pub coverage_weight: f64,
     /// Hypotheses drawn at least (the verifier can only choose one that was drawn); the pool is
-    /// verified after as many samples again, until a candidate's in-view agreement
+    /// verified then and every `check_every` samples after, until a candidate's in-view agreement
     /// ([`Agreement::in_view_share`] with `min_view`) reaches `accept`, the choice stays the
     /// same over `settle_checks` verifications in a row, or `max_iterations` (if more than
     /// PnP's own) were drawn.
     pub min_iterations: usize,
+    /// After `min_iterations`, the pool is verified again every this many hypotheses.
+    pub check_every: usize,
     pub accept: f64,
     pub min_view: f64,
     pub settle_checks: usize,

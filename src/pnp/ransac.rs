@@ -787,7 +787,7 @@ pub fn solve_pnp_ransac_guided(
                         break;
                     }
                 }
-                let check_every = p.verification.min_iterations.max(1);
+                let check_every = p.verification.check_every.max(1);
                 if !accepted && iterations >= min_iterations && iterations % check_every == 0 {
                     accepted = p.verify_all(&data, coverage.as_mut(), &mut idx_buf) >= accept
                         || settled.unchanged(p.choose(), p.verification.settle_checks);
