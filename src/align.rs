@@ -191,7 +191,9 @@ pub fn estimate_scale_shift(
     let best = search_shift(&mut vote, params.shift_range * median_x, params)?;
     // depth = s·(x + t) = s·x + s·t; 1/depth = (x + t)/s.
     let mut estimate = match space {
-        PriorSpace::Depth => ScaleShift { scale: best.scale, shift: best.scale * best.shift, support: best.count, space },
+        PriorSpace::Depth => {
+            ScaleShift { scale: best.scale, shift: best.scale * best.shift, support: best.count, space }
+        }
         PriorSpace::Disparity => {
             ScaleShift { scale: 1.0 / best.scale, shift: best.shift / best.scale, support: best.count, space }
         }
@@ -380,10 +382,8 @@ mod tests {
         let mut rng = SplitMix64(seed);
         let mut u = || rng.next() as f64 / u64::MAX as f64;
         let cam: Vec<_> = (0..n).map(|_| Point3::new(u() * 4.0 - 2.0, u() * 3.0 - 1.5, 1.0 + u() * 4.0)).collect();
-        let pose = Isometry3::from_parts(
-            Translation3::new(0.3, -0.2, 1.0),
-            UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
-        );
+        let pose =
+            Isometry3::from_parts(Translation3::new(0.3, -0.2, 1.0), UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3));
         let map = cam.iter().map(|p| pose.transform_point(p)).collect();
         (cam, map)
     }
@@ -405,8 +405,8 @@ mod tests {
         let rays: Vec<_> = cam.iter().map(|p| p.coords / p.z).collect();
         let mut prior: Vec<_> = cam.iter().map(|p| (p.z - t_true) / s_true).collect();
         corrupt(&mut prior, 0.2, 3.2);
-        let est = estimate_scale_shift(&rays, &prior, &map, &[], PriorSpace::Depth, &ScaleShiftParams::default())
-            .unwrap();
+        let est =
+            estimate_scale_shift(&rays, &prior, &map, &[], PriorSpace::Depth, &ScaleShiftParams::default()).unwrap();
         assert!((est.scale - s_true).abs() < 0.02 * s_true, "{est:?}");
         assert!((est.shift - t_true).abs() < 0.03, "{est:?}");
     }

@@ -240,11 +240,7 @@ impl<'a> PriorVerifier<'a> {
             .filter(|(d, z)| d.is_finite() && z.is_finite())
             .map(|(&d, &z)| (d, space.of_depth(z as f64) as f32))
             .collect();
-        Agreement {
-            agreeing: best_affine_count(&pairs, self.tolerance),
-            in_view: pairs.len(),
-            cells: self.prior.len(),
-        }
+        Agreement { agreeing: best_affine_count(&pairs, self.tolerance), in_view: pairs.len(), cells: self.prior.len() }
     }
 }
 

@@ -59,7 +59,8 @@ impl CascadeParams {
         };
         let cell_px = frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64;
         let all = cells_covered(pixels.iter(), cell_px);
-        let supported = cells_covered(pixels.iter().zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p), cell_px);
+        let supported =
+            cells_covered(pixels.iter().zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p), cell_px);
         let check = FastPathCheck {
             inlier_ratio: solution.num_inliers as f64 / n.max(1) as f64,
             cell_share: supported as f64 / all.max(1) as f64,

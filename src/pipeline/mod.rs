@@ -331,7 +331,14 @@ impl Localizer {
         let pnp = &self.params.pnp;
         let threshold = pnp.for_camera(frame.intrinsics.fx).threshold_px;
         let scale = threshold / pnp.threshold_px;
-        self.params.final_refine.apply(&frame.intrinsics, &frame.correspondences, threshold, scale, min_count, solution);
+        self.params.final_refine.apply(
+            &frame.intrinsics,
+            &frame.correspondences,
+            threshold,
+            scale,
+            min_count,
+            solution,
+        );
     }
 
     fn validate(&self, frame: &Frame) -> Result<(), Failure> {

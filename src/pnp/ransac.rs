@@ -446,7 +446,13 @@ impl<'a> Pool<'a> {
     }
 
     /// The agreement of candidate `i`, verified once: after local optimisation (optional).
-    fn verify(&mut self, i: usize, data: &Data, coverage: Option<&mut Coverage>, idx_buf: &mut Vec<usize>) -> Agreement {
+    fn verify(
+        &mut self,
+        i: usize,
+        data: &Data,
+        coverage: Option<&mut Coverage>,
+        idx_buf: &mut Vec<usize>,
+    ) -> Agreement {
         let c = &mut self.items[i];
         if let Some(agreement) = c.agreement {
             return agreement;
@@ -738,13 +744,11 @@ pub fn solve_pnp_ransac_guided(
         ranks
     });
     let mut prosac = pos_of_rank.as_ref().map(|_| Prosac::new(n, params.max_iterations));
-    let prior = prior_depths
-        .filter(|_| params.prior_tolerance > 0.0)
-        .map(|d| PriorCheck {
-            values: orig.iter().map(|&i| d[i]).collect(),
-            space: prior_space,
-            tolerance: params.prior_tolerance,
-        });
+    let prior = prior_depths.filter(|_| params.prior_tolerance > 0.0).map(|d| PriorCheck {
+        values: orig.iter().map(|&i| d[i]).collect(),
+        space: prior_space,
+        tolerance: params.prior_tolerance,
+    });
     let mut coverage = Coverage::new(&data.px, params.coverage_cell_px, prior);
     let mut pool = verification
         .filter(|v| v.candidates > 0 && coverage.is_some())

@@ -385,10 +385,14 @@ fn modifiers_make_other_sensors_scenes_and_priors() {
         let (_, depth) = gt(f);
         let prior = f.depth_prior.as_ref().expect("prior");
         let k = f.intrinsics;
-        let (near, far) = depth.data.iter().enumerate().filter(|(_, d)| **d > 0.0).fold(
-            ((f32::INFINITY, 0usize), (0f32, 0usize)),
-            |(n, fa), (i, &d)| (if d < n.0 { (d, i) } else { n }, if d > fa.0 { (d, i) } else { fa }),
-        );
+        let (near, far) = depth
+            .data
+            .iter()
+            .enumerate()
+            .filter(|(_, d)| **d > 0.0)
+            .fold(((f32::INFINITY, 0usize), (0f32, 0usize)), |(n, fa), (i, &d)| {
+                (if d < n.0 { (d, i) } else { n }, if d > fa.0 { (d, i) } else { fa })
+            });
         let at = |i: usize| {
             let p = Point2::new((i % k.width as usize) as f64, (i / k.width as usize) as f64);
             prior.sample(&p, k.width, k.height).expect("known")
