@@ -107,6 +107,7 @@ pub fn localization_diagnostics(loc: &Localization) -> DiagnosticArray {
         ("fast_path_ms", format!("{:.4}", t_.fast_path_ms)),
         ("kept", loc.kept.len().to_string()),
         ("pnp_inliers", loc.num_inliers.to_string()),
+        ("pnp_iterations", loc.pnp_iterations.to_string()),
         ("fast_path", loc.fast_path.to_string()),
         ("prior_quality", loc.prior_quality.map_or_else(|| "unknown".to_string(), |q| format!("{q:.3}"))),
     ];

@@ -196,11 +196,12 @@ fn run(cli: Cli) -> Result<()> {
                 bar.set_message(format!("{:.2} ms", loc.timings.total_ms));
                 if verbose {
                     let line = format!(
-                        "frame {}: {} kept, {} inliers, {:.2} ms (fast path {:.2}, geometry {:.2}, reject {:.2}, \
+                        "frame {}: {} kept, {} inliers, {} hypotheses, {:.2} ms (fast path {:.2}, geometry {:.2}, reject {:.2}, \
                          pnp {:.2}){}{}{}",
                         loc.stamp,
                         loc.kept.len(),
                         loc.num_inliers,
+                        loc.pnp_iterations,
                         loc.timings.total_ms,
                         loc.timings.fast_path_ms,
                         loc.timings.geometry_ms,

@@ -82,6 +82,7 @@ def main():
     ap.add_argument("--no-global", action="store_true", help="ablation: local attention only")
     ap.add_argument("--matcher-score", action="store_true", help="also feed the matcher's confidence")
     ap.add_argument("--lr", type=float, default=1e-3)
+    ap.add_argument("--init", help="weights (.pt) to start from instead of a random initialisation")
     ap.add_argument("--tau", type=float, default=0.2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2)
@@ -95,6 +96,9 @@ def main():
     val = {d: load_dir(d) for d in a.val}
     print(f"{len(train)} training samples; val: " + ", ".join(f"{d}: {len(v)}" for d, v in val.items()), flush=True)
     model = AngleI2PNet(d=a.d, blocks=a.blocks, use_global=not a.no_global, use_matcher_score=a.matcher_score)
+    if a.init:
+        # Fine-tuning: start from trained weights of the same shape (e.g. on a wider data mix).
+        model.load_state_dict(torch.load(a.init))
     opt = torch.optim.AdamW(model.parameters(), lr=a.lr, weight_decay=1e-6)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, a.epochs * len(train))
     for epoch in range(a.epochs):

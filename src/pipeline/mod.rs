@@ -103,6 +103,8 @@ pub struct Localization {
     pub kept: Vec<Correspondence>,
     /// PnP inliers (among the correspondences PnP saw).
     pub num_inliers: usize,
+    /// Hypotheses PnP drew (the fast path's and the full path's).
+    pub pnp_iterations: usize,
     pub scale_shift: Option<ScaleShift>,
     /// How far the depth prior can be trusted on this frame: the share of what the map covers
     /// in view at the returned pose where the rendered map agrees with the prior (up to the
@@ -175,6 +177,7 @@ impl Localizer {
             covariance: None,
             kept: Vec::new(),
             num_inliers: 0,
+            pnp_iterations: 0,
             scale_shift: None,
             prior_quality: None,
             fast_path: false,
@@ -308,6 +311,7 @@ impl Localizer {
         out.pose = Some(solution.pose);
         out.covariance = Some(solution.covariance);
         out.num_inliers = solution.num_inliers;
+        out.pnp_iterations += solution.iterations;
         out.prior_quality =
             self.verifier(frame).map(|v| v.agreement(&solution.pose).in_view_share(self.params.verify.min_view));
     }
