@@ -282,12 +282,7 @@ pub fn evaluate_bags(input: &Path, ests: &[std::path::PathBuf], params: &crate::
         .into_iter()
         .zip(rows)
         .zip(no_pose)
-        .map(|((est, frames), no_pose)| Evaluation {
-            method: est.method,
-            summary: summarize(&frames),
-            frames,
-            no_pose,
-        })
+        .map(|((est, frames), no_pose)| Evaluation { method: est.method, summary: summarize(&frames), frames, no_pose })
         .collect();
     Ok(EvalRun { raw: summarize(&raw_rows), evaluations, without_ground_truth })
 }

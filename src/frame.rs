@@ -396,13 +396,13 @@ impl FrameAssembler {
             )];
             errors.extend(p.errors);
             return Some(Assembled::Dropped(IncompleteFrame {
-            stamp,
-            missing: Vec::new(),
-            errors,
-            dropped: true,
-            repeat: true,
-            has_correspondences: p.resolved & PartKind::Correspondences.bit() != 0,
-        }));
+                stamp,
+                missing: Vec::new(),
+                errors,
+                dropped: true,
+                repeat: true,
+                has_correspondences: p.resolved & PartKind::Correspondences.bit() != 0,
+            }));
         }
         let ready = self.pending.get(&stamp).is_some_and(|p| p.resolved & self.expected == self.expected);
         if !ready {
