@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use nalgebra::Isometry3;
 
-use crate::bag::{read_frames, BagFrames, BagMessages, BagWriter, FrameStream, ReadOptions, TopicMap};
+use crate::bag::{BagFrames, BagMessages, BagWriter, FrameStream, ReadOptions, TopicMap};
 use crate::eval::{inlier_mask, inlier_ratio, pose_errors, summarize, FrameMetrics, Summary};
 use crate::frame::{Assembled, Correspondence, IncompleteFrame, Stamp};
 use crate::msgs::{self, convert, from_cdr, DiagnosticArray, DiagnosticStatus, Header, KeyValue};
@@ -76,6 +76,7 @@ pub fn replay(
     }
     writer.finish()?;
     report.issues = stream.issues.iter().map(|i| format!("{}: {}", i.topic, i.reason)).collect();
+    report.issues.extend(stream.limit_counts.summary());
     Ok(report)
 }
 
@@ -318,11 +319,18 @@ pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) 
     use crate::reject::inputs::{build_inputs, IndexedMap};
     use crate::reject::{FrameGeometry, SpectralRejector};
 
-    let bag = read_frames(input, &params.topics)?;
-    let map = bag.map.as_ref().map(|m| IndexedMap::new(m.points.clone()));
+    let mut stream = FrameStream::open(input, &params.topics, &params.limits)?;
+    let map = stream.map.take().map(|m| IndexedMap::new(m.points));
     let mut spectral = SpectralRejector::new(params.network.keypoint_spectral(params.spectral.clone()));
     let mut report = ExportReport { samples: 0, skipped: Vec::new() };
-    for frame in &bag.frames {
+    while let Some(item) = stream.next_frame()? {
+        let frame = match item {
+            Assembled::Complete(f) | Assembled::Partial(f, _) => f,
+            Assembled::Dropped(r) => {
+                report.skipped.push(describe(&r));
+                continue;
+            }
+        };
         let Some((gt_pose, gt_depth)) =
             frame.ground_truth.as_ref().and_then(|g| Some((g.pose.as_ref()?, g.depth.as_ref()?)))
         else {
@@ -333,7 +341,7 @@ pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) 
             report.skipped.push(format!("frame {}: no depth prior or no correspondences", frame.stamp));
             continue;
         }
-        let geometry = FrameGeometry::build(frame, params.depth_kind, params.network.alignment(&params.align));
+        let geometry = FrameGeometry::build(&frame, params.depth_kind, params.network.alignment(&params.align));
         let inputs = build_inputs(&geometry, map.as_ref(), &mut spectral, &params.network);
         let labels: Vec<f32> = inlier_mask(&frame.correspondences, &frame.intrinsics, gt_pose, gt_depth)
             .into_iter()

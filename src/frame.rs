@@ -231,8 +231,8 @@ pub struct FrameAssembler {
     pending: std::collections::BTreeMap<Stamp, Pending>,
     /// Parts for stamps already handed out: a late part, or a second frame at one stamp.
     repeats: std::collections::BTreeMap<Stamp, Pending>,
-    /// The most recent stamps handed out (bounded), to recognise late parts.
-    handed_out: RecentStamps,
+    /// The most recent stamps handed out (bounded), to recognise late parts; `None` when off.
+    handed_out: Option<RecentStamps>,
 }
 
 /// How many handed-out stamps are remembered to recognise late parts and repeated stamps.
@@ -266,7 +266,16 @@ impl FrameAssembler {
     /// Waits for `expected` parts per stamp; the required parts are always expected.
     pub fn new(expected: &[PartKind]) -> Self {
         let expected = expected.iter().chain(PartKind::REQUIRED.iter()).fold(0, |m, k| m | k.bit());
-        Self { expected, pending: Default::default(), repeats: Default::default(), handed_out: Default::default() }
+        Self { expected, pending: Default::default(), repeats: Default::default(), handed_out: None }
+    }
+
+    /// Also recognises parts for a stamp already handed out (the last 4096 are remembered): a
+    /// late part, or a second complete frame at one stamp, each reported as such and skipped.
+    /// For recorded bags; a live node leaves it off, since a restarted player sends the same
+    /// stamps again as new frames.
+    pub fn with_repeat_detection(mut self) -> Self {
+        self.handed_out = Some(RecentStamps::default());
+        self
     }
 
     /// Number of stamps still waiting for parts (late parts included).
@@ -284,7 +293,8 @@ impl FrameAssembler {
     /// The entry a part at `stamp` goes to: the open frame, or — when the frame at `stamp` was
     /// already handed out — a repeat entry that is reported as late parts or a repeated frame.
     fn entry(&mut self, stamp: Stamp) -> &mut Pending {
-        if self.handed_out.contains(stamp) && !self.pending.contains_key(&stamp) {
+        let seen = self.handed_out.as_ref().is_some_and(|h| h.contains(stamp));
+        if seen && !self.pending.contains_key(&stamp) {
             self.repeats.entry(stamp).or_default()
         } else {
             self.pending.entry(stamp).or_default()
@@ -366,7 +376,9 @@ impl FrameAssembler {
     }
 
     fn hand_out(&mut self, stamp: Stamp, p: Pending) -> Assembled {
-        self.handed_out.insert(stamp);
+        if let Some(h) = self.handed_out.as_mut() {
+            h.insert(stamp);
+        }
         self.assemble(stamp, p)
     }
 
@@ -464,79 +476,5 @@ impl FrameAssembler {
 }
 
 #[cfg(test)]
-mod assembler_tests {
-    use super::*;
-
-    fn info(stamp: Stamp) -> FramePart {
-        let intrinsics = Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
-        FramePart::CameraInfo { stamp, intrinsics }
-    }
-
-    fn corr(stamp: Stamp) -> FramePart {
-        FramePart::Correspondences {
-            stamp,
-            camera_frame_id: "cam".into(),
-            map_frame_id: "map".into(),
-            correspondences: vec![],
-        }
-    }
-
-    #[test]
-    fn completes_when_expected_parts_arrive_in_any_order() {
-        let mut a = FrameAssembler::new(&[PartKind::DepthPrior]);
-        assert!(a.push(corr(2)).is_none());
-        assert!(a.push(info(1)).is_none());
-        assert!(a.push(info(2)).is_none());
-        let done = a.push(FramePart::DepthPrior { stamp: 2, depth: DepthImage::new(1, 1, vec![1.0]) });
-        match done {
-            Some(Assembled::Complete(f)) => {
-                assert_eq!(f.stamp, 2);
-                assert_eq!(f.camera_frame_id, "cam");
-                assert!(f.depth_prior.is_some());
-            }
-            other => panic!("{other:?}"),
-        }
-        let rest = a.finish();
-        assert_eq!(rest.len(), 1);
-        match &rest[0] {
-            Assembled::Dropped(r) => {
-                assert_eq!(r.stamp, 1);
-                assert_eq!(r.missing, vec!["correspondences", "depth_prior"]);
-                assert!(r.dropped);
-            }
-            other => panic!("{other:?}"),
-        }
-    }
-
-    #[test]
-    fn decode_errors_resolve_the_part_and_are_reported() {
-        let mut a = FrameAssembler::new(&[PartKind::GroundTruthPose]);
-        a.push(info(5));
-        a.push(corr(5));
-        match a.push_error(5, PartKind::GroundTruthPose, "bad quaternion") {
-            Some(Assembled::Partial(f, r)) => {
-                assert_eq!(f.stamp, 5);
-                assert_eq!(r.missing, vec!["ground_truth_pose"]);
-                assert_eq!(r.errors, vec!["ground_truth_pose: bad quaternion".to_string()]);
-                assert!(!r.dropped);
-            }
-            other => panic!("{other:?}"),
-        }
-        assert_eq!(a.pending(), 0);
-    }
-
-    #[test]
-    fn expire_hands_out_old_frames_only() {
-        let mut a = FrameAssembler::new(&[PartKind::Image]);
-        a.push(info(100));
-        a.push(corr(100));
-        a.push(info(1_000_000_000));
-        let out = a.expire(1_000_000_000, 500_000_000);
-        assert_eq!(out.len(), 1);
-        let (frames, reports) = Assembled::split(out);
-        assert_eq!(frames.len(), 1);
-        assert_eq!(reports[0].missing, vec!["image"]);
-        assert!(reports[0].errors[0].contains("timed out"));
-        assert_eq!(a.pending(), 1);
-    }
-}
+#[path = "frame_tests.rs"]
+mod assembler_tests;

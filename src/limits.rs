@@ -4,7 +4,8 @@
 //!
 //! What happens beyond each limit:
 //! * correspondences per frame: the best `max_correspondences` by score are kept;
-//! * exact duplicate correspondences (same pixel and point) are merged, keeping the best score;
+//! * exact duplicate correspondences (same pixel and point) are merged, keeping the best score
+//!   (`merge_duplicates`), and counted over the run;
 //! * scores outside [0, 1] are clamped into it;
 //! * a CameraInfo, depth prior or ground-truth depth wider or taller than `max_image_side`
 //!   is refused (that part fails with the reason);
@@ -32,6 +33,8 @@ pub struct InputLimits {
     pub max_record_bytes: u64,
     /// Frames waiting for parts at once while reading a bag.
     pub max_pending_frames: usize,
+    /// Merge exact duplicate correspondences (same pixel and point; the best score stays).
+    pub merge_duplicates: bool,
 }
 
 impl Default for InputLimits {
@@ -42,6 +45,7 @@ impl Default for InputLimits {
             max_map_points: 5_000_000,
             max_record_bytes: crate::bag::DEFAULT_MAX_RECORD_BYTES,
             max_pending_frames: 256,
+            merge_duplicates: true,
         }
     }
 }
@@ -56,19 +60,56 @@ pub struct CorrespondenceFixes {
 }
 
 impl CorrespondenceFixes {
-    /// One line per change, for the frame's issues.
+    /// One line per anomaly, for the frame's issues. Merged duplicates are not one (real
+    /// matchers emit a few): they are counted over the run ([`LimitCounts`]).
     pub fn notes(&self, limits: &InputLimits) -> Vec<String> {
         let mut out = Vec::new();
         if self.scores_clamped > 0 {
             out.push(format!("correspondences: {} scores outside [0, 1] clamped", self.scores_clamped));
         }
-        if self.duplicates_merged > 0 {
-            out.push(format!("correspondences: {} exact duplicates merged", self.duplicates_merged));
-        }
         if self.over_limit > 0 {
             out.push(format!(
                 "correspondences: kept the best {} by score, left out {} (limits.max_correspondences)",
                 limits.max_correspondences, self.over_limit
+            ));
+        }
+        out
+    }
+}
+
+/// What the limits changed over a run (frames counted once per kind of change).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct LimitCounts {
+    pub frames_with_duplicates: usize,
+    pub duplicates_merged: usize,
+    pub frames_with_scores_clamped: usize,
+    pub frames_over_correspondence_limit: usize,
+}
+
+impl LimitCounts {
+    pub fn add(&mut self, fixes: &CorrespondenceFixes) {
+        self.frames_with_duplicates += (fixes.duplicates_merged > 0) as usize;
+        self.duplicates_merged += fixes.duplicates_merged;
+        self.frames_with_scores_clamped += (fixes.scores_clamped > 0) as usize;
+        self.frames_over_correspondence_limit += (fixes.over_limit > 0) as usize;
+    }
+
+    /// Summary lines for a run's report (empty when nothing changed).
+    pub fn summary(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.duplicates_merged > 0 {
+            out.push(format!(
+                "{} frames had exact duplicate correspondences: {} merged (limits.merge_duplicates)",
+                self.frames_with_duplicates, self.duplicates_merged
+            ));
+        }
+        if self.frames_with_scores_clamped > 0 {
+            out.push(format!("{} frames had scores outside [0, 1], clamped", self.frames_with_scores_clamped));
+        }
+        if self.frames_over_correspondence_limit > 0 {
+            out.push(format!(
+                "{} frames had more correspondences than limits.max_correspondences; the best by score were kept",
+                self.frames_over_correspondence_limit
             ));
         }
         out
@@ -85,27 +126,8 @@ pub fn limit_correspondences(c: &mut Vec<Correspondence>, limits: &InputLimits) 
             fixes.scores_clamped += 1;
         }
     }
-    let key = |x: &Correspondence| {
-        [x.pixel.x, x.pixel.y, x.point.x, x.point.y, x.point.z].map(|v| if v == 0.0 { 0 } else { v.to_bits() })
-    };
-    let mut first: std::collections::HashMap<[u64; 5], usize> = std::collections::HashMap::with_capacity(c.len());
-    let mut keep = vec![true; c.len()];
-    for i in 0..c.len() {
-        match first.entry(key(&c[i])) {
-            std::collections::hash_map::Entry::Vacant(v) => {
-                v.insert(i);
-            }
-            std::collections::hash_map::Entry::Occupied(o) => {
-                let j = *o.get();
-                c[j].score = c[j].score.max(c[i].score);
-                keep[i] = false;
-                fixes.duplicates_merged += 1;
-            }
-        }
-    }
-    if fixes.duplicates_merged > 0 {
-        let mut flags = keep.into_iter();
-        c.retain(|_| flags.next().unwrap_or(true));
+    if limits.merge_duplicates {
+        fixes.duplicates_merged = merge_duplicates(c);
     }
     if c.len() > limits.max_correspondences {
         let mut order: Vec<usize> = (0..c.len()).collect();
@@ -120,6 +142,35 @@ pub fn limit_correspondences(c: &mut Vec<Correspondence>, limits: &InputLimits) 
         c.retain(|_| flags.next().unwrap_or(false));
     }
     fixes
+}
+
+/// Merges exact duplicates into their first occurrence (keeping the best score); returns how
+/// many were merged.
+fn merge_duplicates(c: &mut Vec<Correspondence>) -> usize {
+    let key = |x: &Correspondence| {
+        [x.pixel.x, x.pixel.y, x.point.x, x.point.y, x.point.z].map(|v| if v == 0.0 { 0 } else { v.to_bits() })
+    };
+    let mut first: std::collections::HashMap<[u64; 5], usize> = std::collections::HashMap::with_capacity(c.len());
+    let mut keep = vec![true; c.len()];
+    let mut merged = 0;
+    for i in 0..c.len() {
+        match first.entry(key(&c[i])) {
+            std::collections::hash_map::Entry::Vacant(v) => {
+                v.insert(i);
+            }
+            std::collections::hash_map::Entry::Occupied(o) => {
+                let j = *o.get();
+                c[j].score = c[j].score.max(c[i].score);
+                keep[i] = false;
+                merged += 1;
+            }
+        }
+    }
+    if merged > 0 {
+        let mut flags = keep.into_iter();
+        c.retain(|_| flags.next().unwrap_or(true));
+    }
+    merged
 }
 
 /// Checks an image size against `max_image_side`; the error says which limit and the size.
@@ -173,7 +224,14 @@ mod tests {
         let fixes = limit_correspondences(&mut v, &limits);
         assert_eq!(fixes, CorrespondenceFixes { duplicates_merged: 1, scores_clamped: 2, over_limit: 2 });
         assert_eq!(v, vec![c(1.0, 0.9), c(2.0, 1.0)]);
-        assert_eq!(fixes.notes(&limits).len(), 3);
+        assert_eq!(fixes.notes(&limits).len(), 2, "duplicates are counted per run, not noted per frame");
+        let mut counts = LimitCounts::default();
+        counts.add(&fixes);
+        assert_eq!(counts.summary().len(), 3);
+        let mut same = vec![c(1.0, 0.2), c(1.0, 0.9)];
+        let keep_all = InputLimits { merge_duplicates: false, ..Default::default() };
+        assert_eq!(limit_correspondences(&mut same, &keep_all).duplicates_merged, 0);
+        assert_eq!(same.len(), 2);
     }
 
     #[test]

@@ -12,7 +12,7 @@ use std::path::Path;
 
 use super::{decode_part_limited, BagError, BagMessages, MessageIssue, ReadOptions, TopicMap};
 use crate::frame::{Assembled, FrameAssembler, IncompleteFrame, MapCloud, PartKind, Stamp};
-use crate::limits::{limit_correspondences, limit_map, InputLimits};
+use crate::limits::{limit_correspondences, limit_map, InputLimits, LimitCounts};
 use crate::msgs::{self, convert, from_cdr, RosMessage};
 
 /// The type each input topic must carry.
@@ -62,14 +62,17 @@ pub fn decode_map(data: &[u8], limits: &InputLimits) -> Result<DecodedMap, msgs:
     Ok(DecodedMap { map, notes })
 }
 
-/// Applies the per-frame limits to an assembled frame; what they changed joins its issues.
-pub fn limit_frame(item: Assembled, limits: &InputLimits) -> Assembled {
+/// Applies the per-frame limits to an assembled frame; anomalies join its issues, every change
+/// is counted in `counts`.
+pub fn limit_frame(item: Assembled, limits: &InputLimits, counts: &mut LimitCounts) -> Assembled {
     let (mut frame, report) = match item {
         Assembled::Complete(f) => (f, None),
         Assembled::Partial(f, r) => (f, Some(r)),
         dropped @ Assembled::Dropped(_) => return dropped,
     };
-    let notes = limit_correspondences(&mut frame.correspondences, limits).notes(limits);
+    let fixes = limit_correspondences(&mut frame.correspondences, limits);
+    counts.add(&fixes);
+    let notes = fixes.notes(limits);
     if notes.is_empty() {
         return match report {
             None => Assembled::Complete(frame),
@@ -102,6 +105,8 @@ pub struct FrameStream {
     pub issues: Vec<MessageIssue>,
     /// Messages on the correspondences topic (an estimate of the frame count).
     pub correspondence_messages: usize,
+    /// What the per-frame limits changed so far.
+    pub limit_counts: LimitCounts,
 }
 
 impl FrameStream {
@@ -140,12 +145,13 @@ impl FrameStream {
             messages: BagMessages::open(path, options)?,
             topics: topics.clone(),
             limits: limits.clone(),
-            assembler: FrameAssembler::new(&expected),
+            assembler: FrameAssembler::new(&expected).with_repeat_detection(),
             ready: VecDeque::new(),
             finished: false,
             map,
             issues,
             correspondence_messages,
+            limit_counts: LimitCounts::default(),
         })
     }
 
@@ -177,6 +183,6 @@ impl FrameStream {
                 self.ready.extend(self.assembler.take_oldest(reason));
             }
         }
-        Ok(self.ready.pop_front().map(|a| limit_frame(a, &self.limits)))
+        Ok(self.ready.pop_front().map(|a| limit_frame(a, &self.limits, &mut self.limit_counts)))
     }
 }

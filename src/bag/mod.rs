@@ -208,7 +208,13 @@ pub fn read_frames_limited(
     }
     assembled.sort_by_key(Assembled::stamp);
     let (frames, incomplete) = Assembled::split(assembled);
-    Ok(BagFrames { map: stream.map.take(), frames, incomplete, issues: std::mem::take(&mut stream.issues) })
+    let mut issues = std::mem::take(&mut stream.issues);
+    issues.extend(stream.limit_counts.summary().into_iter().map(|reason| MessageIssue {
+        topic: topics.correspondences.clone(),
+        log_time: 0,
+        reason,
+    }));
+    Ok(BagFrames { map: stream.map.take(), frames, incomplete, issues })
 }
 
 /// Writes an input bag in the layout of the shared bags: the map once first (stamp 100 ms
