@@ -4,8 +4,10 @@
 //!
 //! What happens beyond each limit:
 //! * correspondences per frame: the best `max_correspondences` by score are kept;
-//! * exact duplicate correspondences (same pixel and point) are merged, keeping the best score
-//!   (`merge_duplicates`), and counted over the run;
+//! * exact duplicate correspondences (same pixel and point) are counted over the run; when they
+//!   are more than `merge_duplicates_above` of a frame's correspondences (a matcher repeating
+//!   its output, which biases rejection and PnP), they are merged, keeping the best score, and
+//!   the frame says so. Real matchers emit a few (up to 8 % of a frame in the shared bags), left as they are;
 //! * scores outside [0, 1] are clamped into it;
 //! * a CameraInfo, depth prior or ground-truth depth wider or taller than `max_image_side`
 //!   is refused (that part fails with the reason);
@@ -33,8 +35,9 @@ pub struct InputLimits {
     pub max_record_bytes: u64,
     /// Frames waiting for parts at once while reading a bag.
     pub max_pending_frames: usize,
-    /// Merge exact duplicate correspondences (same pixel and point; the best score stays).
-    pub merge_duplicates: bool,
+    /// Merge a frame's exact duplicate correspondences (same pixel and point; the best score
+    /// stays) when they are more than this share of them: 0 always, 1 never.
+    pub merge_duplicates_above: f64,
 }
 
 impl Default for InputLimits {
@@ -45,7 +48,7 @@ impl Default for InputLimits {
             max_map_points: 5_000_000,
             max_record_bytes: crate::bag::DEFAULT_MAX_RECORD_BYTES,
             max_pending_frames: 256,
-            merge_duplicates: true,
+            merge_duplicates_above: 0.25,
         }
     }
 }
@@ -53,19 +56,28 @@ impl Default for InputLimits {
 /// What [`limit_correspondences`] changed.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct CorrespondenceFixes {
-    pub duplicates_merged: usize,
+    /// Exact duplicates found (each beyond its first occurrence).
+    pub duplicates: usize,
+    /// Whether they were merged.
+    pub merged: bool,
     pub scores_clamped: usize,
     /// Correspondences left out beyond the limit (the lowest scores).
     pub over_limit: usize,
 }
 
 impl CorrespondenceFixes {
-    /// One line per anomaly, for the frame's issues. Merged duplicates are not one (real
-    /// matchers emit a few): they are counted over the run ([`LimitCounts`]).
+    /// One line per anomaly, for the frame's issues. A few duplicates are not one (real
+    /// matchers emit them): they are only counted over the run ([`LimitCounts`]).
     pub fn notes(&self, limits: &InputLimits) -> Vec<String> {
         let mut out = Vec::new();
         if self.scores_clamped > 0 {
             out.push(format!("correspondences: {} scores outside [0, 1] clamped", self.scores_clamped));
+        }
+        if self.merged {
+            out.push(format!(
+                "correspondences: {} exact duplicates merged (over limits.merge_duplicates_above = {})",
+                self.duplicates, limits.merge_duplicates_above
+            ));
         }
         if self.over_limit > 0 {
             out.push(format!(
@@ -81,15 +93,17 @@ impl CorrespondenceFixes {
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct LimitCounts {
     pub frames_with_duplicates: usize,
-    pub duplicates_merged: usize,
+    pub duplicates: usize,
+    pub frames_with_duplicates_merged: usize,
     pub frames_with_scores_clamped: usize,
     pub frames_over_correspondence_limit: usize,
 }
 
 impl LimitCounts {
     pub fn add(&mut self, fixes: &CorrespondenceFixes) {
-        self.frames_with_duplicates += (fixes.duplicates_merged > 0) as usize;
-        self.duplicates_merged += fixes.duplicates_merged;
+        self.frames_with_duplicates += (fixes.duplicates > 0) as usize;
+        self.duplicates += fixes.duplicates;
+        self.frames_with_duplicates_merged += fixes.merged as usize;
         self.frames_with_scores_clamped += (fixes.scores_clamped > 0) as usize;
         self.frames_over_correspondence_limit += (fixes.over_limit > 0) as usize;
     }
@@ -97,10 +111,11 @@ impl LimitCounts {
     /// Summary lines for a run's report (empty when nothing changed).
     pub fn summary(&self) -> Vec<String> {
         let mut out = Vec::new();
-        if self.duplicates_merged > 0 {
+        if self.duplicates > 0 {
             out.push(format!(
-                "{} frames had exact duplicate correspondences: {} merged (limits.merge_duplicates)",
-                self.frames_with_duplicates, self.duplicates_merged
+                "{} frames had exact duplicate correspondences ({} in all); merged in {} frames where they were \
+                 over limits.merge_duplicates_above",
+                self.frames_with_duplicates, self.duplicates, self.frames_with_duplicates_merged
             ));
         }
         if self.frames_with_scores_clamped > 0 {
@@ -126,8 +141,10 @@ pub fn limit_correspondences(c: &mut Vec<Correspondence>, limits: &InputLimits) 
             fixes.scores_clamped += 1;
         }
     }
-    if limits.merge_duplicates {
-        fixes.duplicates_merged = merge_duplicates(c);
+    fixes.duplicates = count_duplicates(c);
+    if fixes.duplicates > 0 && fixes.duplicates as f64 > limits.merge_duplicates_above * c.len() as f64 {
+        merge_duplicates(c);
+        fixes.merged = true;
     }
     if c.len() > limits.max_correspondences {
         let mut order: Vec<usize> = (0..c.len()).collect();
@@ -144,12 +161,21 @@ pub fn limit_correspondences(c: &mut Vec<Correspondence>, limits: &InputLimits) 
     fixes
 }
 
+/// The identity of a correspondence: its pixel and point, bit for bit (±0 alike).
+fn duplicate_key(x: &Correspondence) -> [u64; 5] {
+    [x.pixel.x, x.pixel.y, x.point.x, x.point.y, x.point.z].map(|v| if v == 0.0 { 0 } else { v.to_bits() })
+}
+
+/// Exact duplicates in `c`, each beyond its first occurrence.
+fn count_duplicates(c: &[Correspondence]) -> usize {
+    let mut seen = std::collections::HashSet::with_capacity(c.len());
+    c.iter().filter(|x| !seen.insert(duplicate_key(x))).count()
+}
+
 /// Merges exact duplicates into their first occurrence (keeping the best score); returns how
 /// many were merged.
 fn merge_duplicates(c: &mut Vec<Correspondence>) -> usize {
-    let key = |x: &Correspondence| {
-        [x.pixel.x, x.pixel.y, x.point.x, x.point.y, x.point.z].map(|v| if v == 0.0 { 0 } else { v.to_bits() })
-    };
+    let key = duplicate_key;
     let mut first: std::collections::HashMap<[u64; 5], usize> = std::collections::HashMap::with_capacity(c.len());
     let mut keep = vec![true; c.len()];
     let mut merged = 0;
@@ -219,19 +245,29 @@ mod tests {
 
     #[test]
     fn duplicates_merge_scores_clamp_and_the_best_are_kept_in_order() {
-        let limits = InputLimits { max_correspondences: 2, ..Default::default() };
+        let limits = InputLimits { max_correspondences: 2, merge_duplicates_above: 0.0, ..Default::default() };
         let mut v = vec![c(1.0, 0.2), c(2.0, 1e30), c(1.0, 0.9), c(3.0, -5.0), c(4.0, 0.5)];
         let fixes = limit_correspondences(&mut v, &limits);
-        assert_eq!(fixes, CorrespondenceFixes { duplicates_merged: 1, scores_clamped: 2, over_limit: 2 });
+        let want = CorrespondenceFixes { duplicates: 1, merged: true, scores_clamped: 2, over_limit: 2 };
+        assert_eq!(fixes, want);
         assert_eq!(v, vec![c(1.0, 0.9), c(2.0, 1.0)]);
-        assert_eq!(fixes.notes(&limits).len(), 2, "duplicates are counted per run, not noted per frame");
+        assert_eq!(fixes.notes(&limits).len(), 3);
         let mut counts = LimitCounts::default();
         counts.add(&fixes);
         assert_eq!(counts.summary().len(), 3);
-        let mut same = vec![c(1.0, 0.2), c(1.0, 0.9)];
-        let keep_all = InputLimits { merge_duplicates: false, ..Default::default() };
-        assert_eq!(limit_correspondences(&mut same, &keep_all).duplicates_merged, 0);
-        assert_eq!(same.len(), 2);
+    }
+
+    #[test]
+    fn a_few_duplicates_are_counted_and_left_many_are_merged() {
+        let few: Vec<Correspondence> = (0..20).map(|i| c(i as f64, 0.5)).chain([c(0.0, 0.9)]).collect();
+        let mut v = few.clone();
+        let fixes = limit_correspondences(&mut v, &InputLimits::default());
+        assert_eq!((fixes.duplicates, fixes.merged, v.len()), (1, false, 21));
+        assert!(fixes.notes(&InputLimits::default()).is_empty(), "a few duplicates are no anomaly");
+        let mut tenfold: Vec<Correspondence> = few.iter().flat_map(|x| std::iter::repeat_n(*x, 10)).collect();
+        let fixes = limit_correspondences(&mut tenfold, &InputLimits::default());
+        assert_eq!((fixes.duplicates, fixes.merged, tenfold.len()), (190, true, 20));
+        assert_eq!(tenfold[0].score, 0.9, "the best score of a merged group stays");
     }
 
     #[test]

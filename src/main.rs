@@ -284,7 +284,13 @@ fn run(cli: Cli) -> Result<()> {
             if json {
                 let obj: serde_json::Map<String, serde_json::Value> = evaluations
                     .iter()
-                    .map(|ev| Ok((ev.method.clone(), serde_json::to_value(&ev.summary)?)))
+                    .map(|ev| {
+                        let mut row = serde_json::to_value(&ev.summary)?;
+                        if let Some(o) = row.as_object_mut() {
+                            o.insert("no_pose".into(), serde_json::to_value(&ev.no_pose)?);
+                        }
+                        Ok((ev.method.clone(), row))
+                    })
                     .collect::<Result<_>>()?;
                 println!("{}", serde_json::to_string_pretty(&obj)?);
             } else {

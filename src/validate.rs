@@ -137,7 +137,8 @@ impl Params {
         at_least("limits.max_image_side", l.max_image_side as u64, 1, "at least 1")?;
         at_least("limits.max_map_points", l.max_map_points as u64, 1, "at least 1")?;
         at_least("limits.max_record_bytes", l.max_record_bytes, 1024, "at least 1024 bytes")?;
-        at_least("limits.max_pending_frames", l.max_pending_frames as u64, 1, "at least 1")
+        at_least("limits.max_pending_frames", l.max_pending_frames as u64, 1, "at least 1")?;
+        real("limits.merge_duplicates_above", l.merge_duplicates_above, Range::Unit)
     }
 }
 

@@ -221,7 +221,7 @@ fn bad_frames_are_skipped_with_their_reason_and_the_run_goes_on() {
         &replay(&bag, &out, &["-p", "limits.max_correspondences:=150"]),
         &[
             "max_image_side",
-            "exact duplicate correspondences",
+            "exact duplicates merged",
             "clamped",
             "kept the best 150",
             "negative header.stamp -5",
@@ -233,12 +233,36 @@ fn bad_frames_are_skipped_with_their_reason_and_the_run_goes_on() {
     let json = run(&["eval".as_ref(), bag.as_os_str(), "--est".as_ref(), out.as_os_str(), "--json".as_ref()]);
     let v: serde_json::Value = serde_json::from_str(&String::from_utf8_lossy(&json.stdout)).unwrap();
     assert_eq!(v["consistency"]["frames"], 6, "{v}");
+    let no_pose = v["consistency"]["no_pose"].as_object().unwrap();
+    assert_eq!(no_pose.keys().filter(|k| k.starts_with("skipped")).count(), 2, "{v}");
     assert!(v["consistency"]["RR"].as_f64().unwrap() <= 100.0 * 4.0 / 6.0 + 1e-9, "{v}");
     let table = run(&["eval".as_ref(), bag.as_os_str(), "--est".as_ref(), out.as_os_str()]);
     assert_ok_with(
         &table,
         &["of 6 frames without a pose", "1 skipped: camera_info", "1 skipped: negative header.stamp"],
     );
+}
+
+#[test]
+fn a_hundred_thousand_correspondences_keep_the_best_five_thousand() {
+    let dir = tempfile::tempdir().unwrap();
+    let (map, frames) = sample(2);
+    let bag = bag_with(dir.path(), "many", &map, &frames, |k, f| {
+        if k == 0 {
+            let base = f.correspondences.clone();
+            f.correspondences = (0..100_000)
+                .map(|i| {
+                    let mut c = base[i % base.len()];
+                    c.pixel.x += (i / base.len()) as f64 * 1e-3;
+                    c.score = (i % 997) as f32 / 997.0;
+                    c
+                })
+                .collect();
+        }
+    });
+    let start = std::time::Instant::now();
+    assert_ok_with(&replay(&bag, &dir.path().join("out"), &[]), &["kept the best 5000", "2 frames, "]);
+    assert!(start.elapsed().as_secs() < 60, "{:?}", start.elapsed());
 }
 
 #[test]

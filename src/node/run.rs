@@ -236,6 +236,9 @@ struct Ingest {
     map_changed: bool,
     queue: Arc<DropOldestQueue<Job>>,
     stats: Arc<Mutex<Stats>>,
+    /// The input limits applied to each assembled frame (`limits.*`).
+    limits: crate::limits::InputLimits,
+    limit_counts: crate::limits::LimitCounts,
 }
 
 impl Ingest {
@@ -314,6 +317,7 @@ impl Ingest {
 
     fn handle(&mut self, done: Option<Assembled>) {
         let Some(done) = done else { return };
+        let done = crate::bag::limit_frame(done, &self.limits, &mut self.limit_counts);
         let arrived = self.pending.remove(&done.stamp()).unwrap_or_else(Instant::now);
         match done {
             Assembled::Complete(frame) => self.enqueue(frame, arrived),
@@ -594,11 +598,17 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         dds::subscription::<msgs::CameraInfo>(&mut node, &topics.camera_info, &sensor)?,
         topics.camera_info.clone(),
         tx.clone(),
-        |m| {
-            let stamp = convert::stamp(&m.header);
-            let r =
-                convert::intrinsics_from_camera_info(&m).map(|intrinsics| FramePart::CameraInfo { stamp, intrinsics });
-            part_or_error(PartKind::CameraInfo, stamp, r)
+        {
+            let limits = params.limits.clone();
+            move |m| {
+                let stamp = convert::stamp(&m.header);
+                let r = crate::limits::check_image_side("CameraInfo", m.width, m.height, &limits).and_then(|()| {
+                    convert::intrinsics_from_camera_info(&m)
+                        .map(|intrinsics| FramePart::CameraInfo { stamp, intrinsics })
+                        .map_err(|e| e.to_string())
+                });
+                part_or_error(PartKind::CameraInfo, stamp, r)
+            }
         },
     )?);
     readers.push(spawn_reader(
@@ -621,10 +631,17 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             dds::subscription::<msgs::Image>(&mut node, &topics.depth_prior, &sensor)?,
             topics.depth_prior.clone(),
             tx.clone(),
-            |m| {
-                let stamp = convert::stamp(&m.header);
-                let r = convert::depth_from_image(&m).map(|depth| FramePart::DepthPrior { stamp, depth });
-                part_or_error(PartKind::DepthPrior, stamp, r)
+            {
+                let limits = params.limits.clone();
+                move |m| {
+                    let stamp = convert::stamp(&m.header);
+                    let r = crate::limits::check_image_side("depth prior", m.width, m.height, &limits).and_then(|()| {
+                        convert::depth_from_image(&m)
+                            .map(|depth| FramePart::DepthPrior { stamp, depth })
+                            .map_err(|e| e.to_string())
+                    });
+                    part_or_error(PartKind::DepthPrior, stamp, r)
+                }
             },
         )?);
     }
@@ -649,7 +666,16 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         dds::subscription::<msgs::PointCloud2>(&mut node, &topics.map, &dds::latched())?,
         topics.map.clone(),
         tx.clone(),
-        |m| Some(Input::Map(convert::map_cloud_from_point_cloud(&m).map_err(|e| e.to_string()))),
+        {
+            let limits = params.limits.clone();
+            move |m| {
+                let map = convert::map_cloud_from_point_cloud(&m).map(|mut map| {
+                    crate::limits::limit_map(&mut map, &limits);
+                    map
+                });
+                Some(Input::Map(map.map_err(|e| e.to_string())))
+            }
+        },
     )?);
     if let Some(buffer) = &tf_buffer {
         for (topic, qos) in [(&topics.tf, dds::reliable(100)), (&topics.tf_static, dds::latched())] {
@@ -684,6 +710,8 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         map_changed: false,
         queue: queue.clone(),
         stats: stats.clone(),
+        limits: params.limits.clone(),
+        limit_counts: Default::default(),
     };
     let diag_period = Duration::from_millis(np.diagnostics_period_ms.max(50));
     let fq_name = names.fully_qualified();
@@ -777,6 +805,8 @@ mod tests {
             map_changed: false,
             queue: Arc::new(DropOldestQueue::new(2)),
             stats: Arc::new(Mutex::new(Stats::default())),
+            limits: Default::default(),
+            limit_counts: Default::default(),
         }
     }
 
