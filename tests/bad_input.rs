@@ -219,13 +219,7 @@ fn bad_frames_are_skipped_with_their_reason_and_the_run_goes_on() {
     let out = dir.path().join("out");
     let t = assert_ok_with(
         &replay(&bag, &out, &["-p", "limits.max_correspondences:=150"]),
-        &[
-            "max_image_side",
-            "exact duplicates merged",
-            "clamped",
-            "kept the best 150",
-            "negative header.stamp -5",
-        ],
+        &["max_image_side", "exact duplicates merged", "clamped", "kept the best 150", "negative header.stamp -5"],
     );
     assert!(t.contains("4 frames, "), "six frames in, two skipped: {t}");
     assert!(t.contains("2 skipped"), "{t}");
