@@ -292,6 +292,29 @@ fn a_map_with_non_finite_points_is_cleaned_and_said() {
     }
     let bag = bag_with(dir.path(), "inf_map", &map, &frames, |_, _| {});
     assert_ok_with(&replay(&bag, &dir.path().join("out"), &[]), &["not finite; dropped", "2 frames, "]);
+    for p in map.points.iter_mut() {
+        p.y = f32::NAN;
+    }
+    let bag = bag_with(dir.path(), "nan_map", &map, &frames, |_, _| {});
+    assert_ok_with(&replay(&bag, &dir.path().join("out2"), &[]), &["no usable point", "2 frames, "]);
+}
+
+#[test]
+fn an_empty_ground_truth_depth_is_scored_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let (map, frames) = sample(2);
+    let bag = bag_with(dir.path(), "empty_gt", &map, &frames, |k, f| {
+        if k == 1 {
+            if let Some(gt) = f.ground_truth.as_mut() {
+                gt.depth = Some(angle_i2p::geometry::DepthImage::new(0, 0, vec![]));
+            }
+        }
+    });
+    let out = dir.path().join("out");
+    assert_ok_with(&replay(&bag, &out, &[]), &["2 frames, "]);
+    let o = run(&["eval".as_ref(), bag.as_os_str(), "--est".as_ref(), out.as_os_str(), "--json".as_ref()]);
+    let t = assert_ok_with(&o, &[]);
+    assert!(t.contains("\"frames\": 2"), "{t}");
 }
 
 #[test]

@@ -134,8 +134,43 @@ fn read_everything(path: &Path) -> Result<usize, String> {
     Ok(n)
 }
 
-fn shipped_bag() -> Vec<u8> {
-    std::fs::read(manifest().join("tests/fixtures/python_written/python_written.mcap")).unwrap()
+/// The bags mutated: the Python-written fixtures (uncompressed, lz4) and a zstd bag of ours.
+fn shipped_bags() -> &'static [Vec<u8>] {
+    static BAGS: std::sync::OnceLock<Vec<Vec<u8>>> = std::sync::OnceLock::new();
+    BAGS.get_or_init(|| {
+        let fixtures = manifest().join("tests/fixtures");
+        let mut out: Vec<Vec<u8>> =
+            ["python_written/python_written.mcap", "python_written_lz4/python_written_lz4.mcap"]
+                .iter()
+                .map(|p| std::fs::read(fixtures.join(p)).unwrap())
+                .collect();
+        let dir = tempfile::tempdir().unwrap();
+        let bag = dir.path().join("zstd");
+        let mut w = angle_i2p::bag::BagWriter::create(&bag).unwrap();
+        for (t, seed) in seeds().iter().enumerate() {
+            let topics = TopicMap::default();
+            let topic = [
+                &topics.camera_info,
+                &topics.depth_prior,
+                &topics.ground_truth_depth,
+                &topics.correspondences,
+                &topics.ground_truth_pose,
+                &topics.map,
+            ][t];
+            let type_name = [
+                "sensor_msgs/msg/CameraInfo",
+                "sensor_msgs/msg/Image",
+                "sensor_msgs/msg/Image",
+                "angle_i2p_msgs/msg/Correspondences",
+                "geometry_msgs/msg/PoseStamped",
+                "sensor_msgs/msg/PointCloud2",
+            ][t];
+            w.write_raw(topic, type_name, "", 5, seed).unwrap();
+        }
+        w.finish().unwrap();
+        out.push(std::fs::read(bag.join("zstd.mcap")).unwrap());
+        out
+    })
 }
 
 proptest! {
@@ -144,12 +179,20 @@ proptest! {
     /// Mutated bytes of a shipped bag: an error naming the file, or messages; never a crash.
     #[test]
     fn mcap_reader_takes_mutated_bags(
-        edits in proptest::collection::vec((0.0f64..1.0, any::<u8>()), 1..6),
+        bag in 0usize..3,
+        edits in proptest::collection::vec((0.0f64..1.0, any::<u8>()), 0..6),
+        lengths in proptest::collection::vec((0.0f64..1.0, prop_oneof![Just(1u64 << 48), Just(1u64 << 63), Just(4_000_000_000u64), any::<u64>()]), 0..2),
         cut in proptest::option::of(0.5f64..1.0),
     ) {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("mutated.mcap");
-        let bytes = mutate(shipped_bag(), &edits, cut);
+        let mut bytes = shipped_bags()[bag].clone();
+        // Absurd values over what may be a length field.
+        for (at, value) in &lengths {
+            let i = ((at * bytes.len() as f64) as usize).min(bytes.len().saturating_sub(8));
+            bytes[i..i + 8].copy_from_slice(&value.to_le_bytes());
+        }
+        let bytes = mutate(bytes, &edits, cut);
         std::fs::write(&path, &bytes).unwrap();
         if let Err(e) = read_everything(&path) {
             prop_assert!(e.contains("mutated.mcap"), "error does not name the file: {}", e);
