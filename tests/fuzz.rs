@@ -278,3 +278,37 @@ proptest! {
         }
     }
 }
+
+proptest! {
+    #![proptest_config(config(48))]
+
+    /// A well-formed bag (valid CRCs) whose messages are mutated: the frame stream decodes,
+    /// limits and assembles them into frames or reports, never a crash.
+    #[test]
+    fn frame_stream_takes_mutated_messages(
+        messages in proptest::collection::vec(
+            (0usize..6, proptest::collection::vec((0.0f64..1.0, any::<u8>()), 0..4), proptest::option::of(0.3f64..1.0)),
+            1..12,
+        ),
+    ) {
+        let dir = tempfile::tempdir().unwrap();
+        let bag = dir.path().join("bag");
+        let topics = TopicMap::default();
+        let mut w = angle_i2p::bag::BagWriter::create(&bag).unwrap();
+        for (k, (seed, edits, cut)) in messages.iter().enumerate() {
+            let (topic, type_name) = [
+                (&topics.camera_info, "sensor_msgs/msg/CameraInfo"),
+                (&topics.depth_prior, "sensor_msgs/msg/Image"),
+                (&topics.ground_truth_depth, "sensor_msgs/msg/Image"),
+                (&topics.correspondences, "angle_i2p_msgs/msg/Correspondences"),
+                (&topics.ground_truth_pose, "geometry_msgs/msg/PoseStamped"),
+                (&topics.map, "sensor_msgs/msg/PointCloud2"),
+            ][*seed];
+            let data = mutate(seeds()[*seed].clone(), edits, *cut);
+            w.write_raw(topic, type_name, "", k as i64, &data).unwrap();
+        }
+        w.finish().unwrap();
+        let mut stream = FrameStream::open(&bag, &topics, &InputLimits::default()).unwrap();
+        while stream.next_frame().unwrap().is_some() {}
+    }
+}
