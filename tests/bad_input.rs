@@ -260,6 +260,29 @@ fn a_hundred_thousand_correspondences_keep_the_best_five_thousand() {
 }
 
 #[test]
+fn frames_waiting_for_parts_are_bounded() {
+    let dir = tempfile::tempdir().unwrap();
+    let (map, frames) = sample(2);
+    let path = dir.path().join("waiting");
+    let mut w = BagWriter::create(&path).unwrap();
+    w.write("/map/points", 0, &convert::point_cloud(0, &map)).unwrap();
+    // 50 camera infos whose correspondences never come, then two whole frames.
+    for k in 0..50 {
+        let t = frames[0].stamp - 1000 + k;
+        w.write("/camera/camera_info", t, &convert::camera_info(t, "cam", &frames[0].intrinsics)).unwrap();
+    }
+    for f in &frames {
+        write_frame(&mut w, f, f.stamp);
+    }
+    w.finish().unwrap();
+    let t = assert_ok_with(
+        &replay(&path, &dir.path().join("out"), &["-p", "limits.max_pending_frames:=10"]),
+        &["more than 10 frames were waiting", "2 frames, ", "50 skipped"],
+    );
+    assert!(t.contains("missing correspondences"), "{t}");
+}
+
+#[test]
 fn repeated_stamps_and_late_parts_are_named() {
     let dir = tempfile::tempdir().unwrap();
     let (map, frames) = sample(3);

@@ -652,7 +652,13 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             dds::subscription::<msgs::CompressedImage>(&mut node, &topics.image, &sensor)?,
             topics.image.clone(),
             tx.clone(),
-            move |m| image_part(&src, ImageSource::COMPRESSED, &topic, &m.header, || img::rgb_from_compressed(&m)),
+            {
+                let side = params.limits.max_image_side;
+                move |m| {
+                    let rgb = || img::rgb_from_compressed_within(&m, side);
+                    image_part(&src, ImageSource::COMPRESSED, &topic, &m.header, rgb)
+                }
+            },
         )?);
         let (src, topic) = (source, topics.image_raw.clone());
         readers.push(spawn_reader(
