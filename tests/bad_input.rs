@@ -259,6 +259,31 @@ fn a_hundred_thousand_correspondences_keep_the_best_five_thousand() {
     assert!(start.elapsed().as_secs() < 60, "{:?}", start.elapsed());
 }
 
+/// A map recorded after the frames is still used for every frame: the first pass takes it.
+#[test]
+fn a_map_that_comes_last_is_used_for_every_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let (map, frames) = sample(3);
+    let first = bag_with(dir.path(), "map_first", &map, &frames, |_, _| {});
+    let last = dir.path().join("map_last");
+    let mut w = BagWriter::create(&last).unwrap();
+    for f in &frames {
+        write_frame(&mut w, f, f.stamp);
+    }
+    let t = frames[2].stamp + 1;
+    w.write("/map/points", t, &convert::point_cloud(t, &map)).unwrap();
+    w.finish().unwrap();
+    let mut scores = Vec::new();
+    for bag in [&first, &last] {
+        let out = dir.path().join(format!("out-{}", bag.file_name().unwrap().to_string_lossy()));
+        assert_ok_with(&replay(bag, &out, &[]), &["3 frames, 3 with a pose"]);
+        let o = run(&["eval".as_ref(), bag.as_os_str(), "--est".as_ref(), out.as_os_str(), "--json".as_ref()]);
+        let v: serde_json::Value = serde_json::from_str(&assert_ok_with(&o, &[])).unwrap();
+        scores.push((v["consistency"]["MRE"].clone(), v["consistency"]["MTE"].clone()));
+    }
+    assert_eq!(scores[0], scores[1], "the same poses whether the map comes first or last");
+}
+
 #[test]
 fn frames_waiting_for_parts_are_bounded() {
     let dir = tempfile::tempdir().unwrap();
