@@ -183,10 +183,10 @@ struct Estimates {
     by_stamp: HashMap<Stamp, Estimate>,
 }
 
-fn read_estimates(est: &Path, topics: &TopicMap) -> Result<Estimates> {
+fn read_estimates(est: &Path, topics: &TopicMap, max_record_bytes: u64) -> Result<Estimates> {
     let mut by_stamp: HashMap<Stamp, Estimate> = HashMap::new();
     let mut method = None;
-    for m in BagMessages::open(est, ReadOptions::default())? {
+    for m in BagMessages::open(est, ReadOptions { max_record_bytes, ..ReadOptions::default() })? {
         let m = m?;
         let topic = m.topic();
         let decode_err = || format!("{}: {topic} at log time {}", est.display(), m.log_time);
@@ -230,7 +230,10 @@ pub fn evaluate_bags(input: &Path, ests: &[std::path::PathBuf], params: &crate::
     let topics = &params.topics;
     let mut estimates = Vec::with_capacity(ests.len());
     for e in ests {
-        estimates.push(read_estimates(e, topics).with_context(|| format!("evaluating {}", e.display()))?);
+        estimates.push(
+            read_estimates(e, topics, params.limits.max_record_bytes)
+                .with_context(|| format!("evaluating {}", e.display()))?,
+        );
     }
     let mut rows: Vec<Vec<FrameMetrics>> = vec![Vec::new(); ests.len()];
     let mut no_pose: Vec<BTreeMap<String, usize>> = vec![BTreeMap::new(); ests.len()];
