@@ -4,7 +4,7 @@ VENV := .venv
 CARGO ?= cargo
 DEMO_BAG := bags/synth-hard
 
-.PHONY: all build demo test py-venv bench bags ort training-env ablations clean
+.PHONY: all build demo test fuzz py-venv bench bags ort training-env ablations clean
 
 all: build
 
@@ -41,6 +41,13 @@ side-by-side: build ort py-venv
 # All tests (unit, integration, Python-reader interop, evaluator agreement when ../shared is present).
 test: py-venv ort
 	ANGLE_I2P_PYTHON=$(abspath $(VENV))/bin/python $(CARGO) test --release --all-targets
+
+# Long fuzzing (minutes): the proptest targets of tests/fuzz.rs with many more cases than the
+# suite's short mode. FUZZ_CASES raises or lowers it. A crash prints the shrunk input: keep it
+# under tests/fixtures/fuzz/ (raw bytes; `.mcap` for a bag) so every later run replays it.
+FUZZ_CASES ?= 20000
+fuzz:
+	ANGLE_I2P_FUZZ_CASES=$(FUZZ_CASES) $(CARGO) test --release --test fuzz -- --test-threads 2
 
 bench:
 	$(CARGO) bench

@@ -1,15 +1,15 @@
 //! The commands' bag edges: `replay` (bag → localizer → bag) and `evaluate` (input bag with
 //! ground truth + output bag → metrics). Geometry stays in the core; this only moves messages.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 use anyhow::{Context, Result};
 use nalgebra::Isometry3;
 
-use crate::bag::{read_frames, BagFrames, BagReader, BagWriter, TopicMap};
+use crate::bag::{BagFrames, BagMessages, BagWriter, FrameStream, ReadOptions, TopicMap};
 use crate::eval::{inlier_mask, inlier_ratio, pose_errors, summarize, FrameMetrics, Summary};
-use crate::frame::{Correspondence, IncompleteFrame, Stamp};
+use crate::frame::{Assembled, Correspondence, IncompleteFrame, Stamp};
 use crate::msgs::{self, convert, from_cdr, DiagnosticArray, DiagnosticStatus, Header, KeyValue};
 use crate::pipeline::{Localization, Localizer};
 
@@ -20,13 +20,20 @@ pub const STATUS_NAME: &str = "angle_i2p: localization";
 
 /// What a replay did.
 pub struct ReplayReport {
+    /// One per frame processed, in processing order; `kept` is emptied once written, so the
+    /// report stays small however long the bag.
     pub localizations: Vec<Localization>,
+    /// Frames with a missing or broken part, a limit hit, a late part or a repeated stamp.
     pub incomplete: Vec<IncompleteFrame>,
     pub issues: Vec<String>,
 }
 
 /// Runs `localizer` over every frame of the bag at `input` and writes the results to a new bag
-/// at `output`. `on_frame` is called after each frame (progress reporting).
+/// at `output`, frame by frame as they are read (memory does not grow with the bag's length).
+/// The bag is checked whole before the output is created; the map is used wherever it is in
+/// the bag. A frame that cannot be processed is skipped with its reason (in `/diagnostics` and
+/// the report). `on_frame(k, n, loc)` is called after each frame; `n` is the number of
+/// correspondence messages in the bag (the frames expected).
 pub fn replay(
     input: &Path,
     output: &Path,
@@ -34,38 +41,43 @@ pub fn replay(
     topics: &TopicMap,
     mut on_frame: impl FnMut(usize, usize, &Localization),
 ) -> Result<ReplayReport> {
-    let BagFrames { map, frames, incomplete, issues } = read_frames(input, topics)?;
+    let limits = localizer.params().limits.clone();
+    let mut stream = FrameStream::open(input, topics, &limits)?;
     if let Some(e) = localizer.setup_error() {
         anyhow::bail!("method {}: {e}", localizer.params().method.name());
     }
-    if let Some(map) = &map {
-        localizer.set_map(map);
+    if let Some(map) = stream.map.take() {
+        localizer.set_map(&map);
     }
+    let expected = stream.correspondence_messages;
     let mut writer = BagWriter::create(output)?;
-    let mut localizations = Vec::with_capacity(frames.len());
-    for (k, frame) in frames.iter().enumerate() {
-        let loc = localizer.process(frame);
+    let mut report = ReplayReport { localizations: Vec::new(), incomplete: Vec::new(), issues: Vec::new() };
+    while let Some(item) = stream.next_frame()? {
+        let frame = match item {
+            Assembled::Complete(f) => f,
+            Assembled::Partial(f, r) => {
+                report.incomplete.push(r);
+                f
+            }
+            Assembled::Dropped(r) => {
+                let method = localizer.params().method.name();
+                write_diagnostics(&mut writer, r.stamp, method, &[], Some(&describe(&r)))?;
+                report.incomplete.push(r);
+                continue;
+            }
+        };
+        let mut loc = localizer.process(&frame);
+        drop(frame);
         write_localization(&mut writer, topics, &loc)?;
-        on_frame(k, frames.len(), &loc);
-        localizations.push(loc);
-    }
-    for missing in &incomplete {
-        if missing.dropped {
-            write_diagnostics(
-                &mut writer,
-                missing.stamp,
-                localizer.params().method.name(),
-                &[],
-                Some(&describe(missing)),
-            )?;
-        }
+        let k = report.localizations.len();
+        on_frame(k, expected.max(k + 1), &loc);
+        loc.kept = Vec::new();
+        report.localizations.push(loc);
     }
     writer.finish()?;
-    Ok(ReplayReport {
-        localizations,
-        incomplete,
-        issues: issues.iter().map(|i| format!("{}: {}", i.topic, i.reason)).collect(),
-    })
+    report.issues = stream.issues.iter().map(|i| format!("{}: {}", i.topic, i.reason)).collect();
+    report.issues.extend(stream.limit_counts.summary());
+    Ok(report)
 }
 
 pub fn describe(f: &IncompleteFrame) -> String {
@@ -115,6 +127,8 @@ pub fn localization_diagnostics(loc: &Localization) -> DiagnosticArray {
     diagnostics_msg(loc.stamp, loc.method.name(), &values, failure.as_deref())
 }
 
+/// Writes one frame's diagnostics; a negative stamp (a skipped frame) is logged at time 0, its
+/// header keeping the stamp.
 fn write_diagnostics(
     w: &mut BagWriter,
     stamp: Stamp,
@@ -122,7 +136,7 @@ fn write_diagnostics(
     values: &[(&str, String)],
     failure: Option<&str>,
 ) -> Result<()> {
-    w.write(DIAGNOSTICS_TOPIC, stamp, &diagnostics_msg(stamp, method, values, failure))?;
+    w.write(DIAGNOSTICS_TOPIC, stamp.max(0), &diagnostics_msg(stamp, method, values, failure))?;
     Ok(())
 }
 
@@ -145,6 +159,8 @@ struct Estimate {
     pose: Option<Isometry3<f64>>,
     kept: Vec<Correspondence>,
     ms: Option<f64>,
+    /// The diagnostics' reason when the frame has no pose.
+    failure: Option<String>,
 }
 
 /// An evaluated output bag.
@@ -152,15 +168,30 @@ pub struct Evaluation {
     pub method: String,
     pub summary: Summary,
     pub frames: Vec<FrameMetrics>,
+    /// Frames without a pose, by reason: `skipped: …` (dropped for bad input), `failed: …`
+    /// (the method found none), `missing from the output`.
+    pub no_pose: BTreeMap<String, usize>,
 }
 
-/// Scores the output bag `est` against the ground truth of the input bag `input`, frame by
-/// frame over the input's frames (a frame with no output counts as not registered).
-pub fn evaluate(input: &BagFrames, est: &Path, topics: &TopicMap) -> Result<Evaluation> {
-    let reader = BagReader::open(est)?;
+/// Scores of one `eval` run: the matcher's raw inlier ratio and one evaluation per output bag.
+pub struct EvalRun {
+    pub raw: Summary,
+    pub evaluations: Vec<Evaluation>,
+    /// Frames of the input that lack ground truth (pose or depth) and so are not scored.
+    pub without_ground_truth: usize,
+}
+
+/// The estimates of an output bag, by stamp, and the method it names.
+struct Estimates {
+    method: String,
+    by_stamp: HashMap<Stamp, Estimate>,
+}
+
+fn read_estimates(est: &Path, topics: &TopicMap, max_record_bytes: u64) -> Result<Estimates> {
     let mut by_stamp: HashMap<Stamp, Estimate> = HashMap::new();
     let mut method = None;
-    for m in reader.messages() {
+    for m in BagMessages::open(est, ReadOptions { max_record_bytes, ..ReadOptions::default() })? {
+        let m = m?;
         let topic = m.topic();
         let decode_err = || format!("{}: {topic} at log time {}", est.display(), m.log_time);
         if topic == topics.pose {
@@ -176,31 +207,92 @@ pub fn evaluate(input: &BagFrames, est: &Path, topics: &TopicMap) -> Result<Eval
             for status in msg.status.iter().filter(|s| s.name == STATUS_NAME) {
                 let value = |key: &str| status.values.iter().find(|kv| kv.key == key).map(|kv| kv.value.clone());
                 method = method.or_else(|| value("method"));
+                let e = by_stamp.entry(convert::stamp(&msg.header)).or_default();
                 if let Some(ms) = value("total_ms").and_then(|v| v.parse().ok()) {
-                    by_stamp.entry(convert::stamp(&msg.header)).or_default().ms = Some(ms);
+                    e.ms = Some(ms);
+                }
+                if status.level != DiagnosticStatus::OK {
+                    e.failure = Some(status.message.clone());
                 }
             }
         }
     }
-    let mut rows = Vec::new();
-    for frame in &input.frames {
-        let Some(gt) = &frame.ground_truth else { continue };
-        let (Some(gt_pose), Some(gt_depth)) = (&gt.pose, &gt.depth) else { continue };
-        let e = by_stamp.remove(&frame.stamp).unwrap_or_default();
-        let mask = inlier_mask(&e.kept, &frame.intrinsics, gt_pose, gt_depth);
-        rows.push(FrameMetrics {
-            stamp: frame.stamp,
-            inlier_ratio: inlier_ratio(&mask),
-            errors: e.pose.map(|p| pose_errors(&p, gt_pose, &frame.intrinsics, gt_depth)),
-            ms: e.ms,
-        });
+    Ok(Estimates { method: method.unwrap_or_else(|| est.display().to_string()), by_stamp })
+}
+
+/// The reason class of a failure message: its text up to the first ':' (numbers follow).
+fn reason_class(message: &str) -> String {
+    let head = message.split(':').next().unwrap_or(message).trim();
+    head.chars().take(60).collect()
+}
+
+/// Scores every output bag in `ests` against the ground truth of the input bag, streaming the
+/// input once. Every frame of the input (every stamp with a correspondences message) counts:
+/// one dropped for bad input, one the method failed on and one missing from the output are
+/// all not registered in RR, and `no_pose` says how many of each.
+pub fn evaluate_bags(input: &Path, ests: &[std::path::PathBuf], params: &crate::params::Params) -> Result<EvalRun> {
+    let topics = &params.topics;
+    let mut estimates = Vec::with_capacity(ests.len());
+    for e in ests {
+        estimates.push(
+            read_estimates(e, topics, params.limits.max_record_bytes)
+                .with_context(|| format!("evaluating {}", e.display()))?,
+        );
     }
-    anyhow::ensure!(!rows.is_empty(), "{}: no frame with ground-truth pose and depth to score against", "input bag");
-    Ok(Evaluation {
-        method: method.unwrap_or_else(|| est.display().to_string()),
-        summary: summarize(&rows),
-        frames: rows,
-    })
+    let mut rows: Vec<Vec<FrameMetrics>> = vec![Vec::new(); ests.len()];
+    let mut no_pose: Vec<BTreeMap<String, usize>> = vec![BTreeMap::new(); ests.len()];
+    let (mut raw_rows, mut without_ground_truth) = (Vec::new(), 0usize);
+    let mut stream = FrameStream::open(input, topics, &params.limits)?;
+    while let Some(item) = stream.next_frame()? {
+        let frame = match item {
+            Assembled::Complete(f) | Assembled::Partial(f, _) => f,
+            Assembled::Dropped(r) if r.has_correspondences && !r.repeat => {
+                let first = r.errors.first().cloned().unwrap_or_else(|| format!("missing {}", r.missing.join(", ")));
+                let reason = format!("skipped: {}", reason_class(&first));
+                for (k, _) in ests.iter().enumerate() {
+                    rows[k].push(FrameMetrics { stamp: r.stamp, inlier_ratio: 0.0, errors: None, ms: None });
+                    *no_pose[k].entry(reason.clone()).or_default() += 1;
+                }
+                continue;
+            }
+            Assembled::Dropped(_) => continue,
+        };
+        let Some((gt_pose, gt_depth)) =
+            frame.ground_truth.as_ref().and_then(|g| Some((g.pose.as_ref()?, g.depth.as_ref()?)))
+        else {
+            without_ground_truth += 1;
+            continue;
+        };
+        let mask = inlier_mask(&frame.correspondences, &frame.intrinsics, gt_pose, gt_depth);
+        raw_rows.push(FrameMetrics { stamp: frame.stamp, inlier_ratio: inlier_ratio(&mask), errors: None, ms: None });
+        for (k, est) in estimates.iter_mut().enumerate() {
+            let e = est.by_stamp.remove(&frame.stamp);
+            let (kept, pose, ms) = e.as_ref().map_or((&[][..], None, None), |e| (&e.kept[..], e.pose, e.ms));
+            let mask = inlier_mask(kept, &frame.intrinsics, gt_pose, gt_depth);
+            let errors = pose.map(|p| pose_errors(&p, gt_pose, &frame.intrinsics, gt_depth));
+            if errors.is_none() {
+                let reason = match e.as_ref().and_then(|e| e.failure.as_deref()) {
+                    Some(f) => format!("failed: {}", reason_class(f)),
+                    None if e.is_some() => "failed".to_string(),
+                    None => "missing from the output".to_string(),
+                };
+                *no_pose[k].entry(reason).or_default() += 1;
+            }
+            rows[k].push(FrameMetrics { stamp: frame.stamp, inlier_ratio: inlier_ratio(&mask), errors, ms });
+        }
+    }
+    anyhow::ensure!(
+        !raw_rows.is_empty() || rows.iter().any(|r| !r.is_empty()),
+        "{}: no frame with ground-truth pose and depth to score against",
+        input.display()
+    );
+    let evaluations = estimates
+        .into_iter()
+        .zip(rows)
+        .zip(no_pose)
+        .map(|((est, frames), no_pose)| Evaluation { method: est.method, summary: summarize(&frames), frames, no_pose })
+        .collect();
+    Ok(EvalRun { raw: summarize(&raw_rows), evaluations, without_ground_truth })
 }
 
 /// The inlier ratio of the matcher's raw correspondences (the input's IR).
@@ -234,11 +326,18 @@ pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) 
     use crate::reject::inputs::{build_inputs, IndexedMap};
     use crate::reject::{FrameGeometry, SpectralRejector};
 
-    let bag = read_frames(input, &params.topics)?;
-    let map = bag.map.as_ref().map(|m| IndexedMap::new(m.points.clone()));
+    let mut stream = FrameStream::open(input, &params.topics, &params.limits)?;
+    let map = stream.map.take().map(|m| IndexedMap::new(m.points));
     let mut spectral = SpectralRejector::new(params.network.keypoint_spectral(params.spectral.clone()));
     let mut report = ExportReport { samples: 0, skipped: Vec::new() };
-    for frame in &bag.frames {
+    while let Some(item) = stream.next_frame()? {
+        let frame = match item {
+            Assembled::Complete(f) | Assembled::Partial(f, _) => f,
+            Assembled::Dropped(r) => {
+                report.skipped.push(describe(&r));
+                continue;
+            }
+        };
         let Some((gt_pose, gt_depth)) =
             frame.ground_truth.as_ref().and_then(|g| Some((g.pose.as_ref()?, g.depth.as_ref()?)))
         else {
@@ -249,7 +348,7 @@ pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) 
             report.skipped.push(format!("frame {}: no depth prior or no correspondences", frame.stamp));
             continue;
         }
-        let geometry = FrameGeometry::build(frame, params.depth_kind, params.network.alignment(&params.align));
+        let geometry = FrameGeometry::build(&frame, params.depth_kind, params.network.alignment(&params.align));
         let inputs = build_inputs(&geometry, map.as_ref(), &mut spectral, &params.network);
         let labels: Vec<f32> = inlier_mask(&frame.correspondences, &frame.intrinsics, gt_pose, gt_depth)
             .into_iter()
@@ -296,4 +395,36 @@ pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) 
         report.samples += 1;
     }
     Ok(report)
+}
+
+/// `synth --out DIR` may replace DIR only when it does not exist, is empty, or `force` is set.
+pub fn check_synth_out(out: &Path, force: bool) -> Result<()> {
+    let Ok(meta) = std::fs::symlink_metadata(out) else { return Ok(()) };
+    anyhow::ensure!(meta.is_dir(), "{} exists and is not a directory; refusing to replace it", out.display());
+    let entries = std::fs::read_dir(out).with_context(|| format!("reading {}", out.display()))?.count();
+    anyhow::ensure!(
+        entries == 0 || force,
+        "{} is not empty ({entries} entries); pass --force to delete it and write the bag there",
+        out.display()
+    );
+    Ok(())
+}
+
+/// Lines saying, per evaluated bag, how many frames had no pose and why (empty when all had one).
+pub fn format_no_pose(evaluations: &[Evaluation], without_ground_truth: usize) -> String {
+    let mut out = String::new();
+    for ev in evaluations.iter().filter(|ev| !ev.no_pose.is_empty()) {
+        let total: usize = ev.no_pose.values().sum();
+        let why: Vec<String> = ev.no_pose.iter().map(|(reason, n)| format!("{n} {reason}")).collect();
+        out += &format!(
+            "{}: {total} of {} frames without a pose (not registered): {}\n",
+            ev.method,
+            ev.summary.frames,
+            why.join("; ")
+        );
+    }
+    if without_ground_truth > 0 {
+        out += &format!("{without_ground_truth} input frames lack ground-truth pose or depth and are not scored\n");
+    }
+    out
 }

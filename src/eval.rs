@@ -34,10 +34,14 @@ pub fn inlier_mask(
     correspondences
         .iter()
         .map(|c| {
+            if w == 0 || h == 0 {
+                // An empty ground-truth image: no pixel has depth.
+                return (false, false);
+            }
             // numpy's round: half to even, then clipped into the image.
             let u = (c.pixel.x.round_ties_even() as i64).clamp(0, w - 1);
             let v = (c.pixel.y.round_ties_even() as i64).clamp(0, h - 1);
-            let z = gt_depth.data[(v * w + u) as usize] as f64;
+            let z = gt_depth.data.get((v * w + u) as usize).copied().unwrap_or(0.0) as f64;
             if !(z > 0.0) {
                 return (false, false);
             }
@@ -76,7 +80,7 @@ pub fn pose_errors(est: &Isometry3<f64>, gt: &Isometry3<f64>, k: &Intrinsics, gt
     let w = gt_depth.width as usize;
     for v in (0..gt_depth.height as usize).step_by(RMSE_STRIDE) {
         for u in (0..w).step_by(RMSE_STRIDE) {
-            let z = gt_depth.data[v * w + u] as f64;
+            let z = gt_depth.data.get(v * w + u).copied().unwrap_or(0.0) as f64;
             if z == 0.0 || !z.is_finite() {
                 continue;
             }
@@ -226,6 +230,15 @@ mod tests {
         let m = inlier_mask(&[c(on), c(on + Vector3::new(0.0, 0.06, 0.0))], &k(), &pose, &depth);
         assert_eq!(m, vec![(true, true), (false, true)]);
         assert_eq!(inlier_ratio(&m), 0.5);
+    }
+
+    #[test]
+    fn an_empty_ground_truth_depth_gives_no_inliers_and_no_rmse() {
+        let empty = DepthImage::new(0, 0, vec![]);
+        let c = Correspondence { pixel: Point2::new(3.0, 4.0), point: Point3::new(0.0, 0.0, 1.0), score: 1.0 };
+        assert_eq!(inlier_mask(&[c], &k(), &Isometry3::identity(), &empty), vec![(false, false)]);
+        let e = pose_errors(&Isometry3::identity(), &Isometry3::identity(), &k(), &empty);
+        assert!(e.rmse_m.is_nan());
     }
 
     #[test]

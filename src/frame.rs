@@ -166,6 +166,10 @@ pub struct IncompleteFrame {
     pub errors: Vec<String>,
     /// True when a required part is missing, so no [`Frame`] was produced.
     pub dropped: bool,
+    /// Late parts or a repeated frame at a stamp already handed out: not a frame of its own.
+    pub repeat: bool,
+    /// A correspondences message came for this stamp (decoded or not): the input had a frame here.
+    pub has_correspondences: bool,
 }
 
 /// What the assembler hands out for one stamp.
@@ -225,25 +229,83 @@ struct Pending {
 pub struct FrameAssembler {
     expected: u8,
     pending: std::collections::BTreeMap<Stamp, Pending>,
+    /// Parts for stamps already handed out: a late part, or a second frame at one stamp.
+    repeats: std::collections::BTreeMap<Stamp, Pending>,
+    /// The most recent stamps handed out (bounded), to recognise late parts; `None` when off.
+    handed_out: Option<RecentStamps>,
+}
+
+/// How many handed-out stamps are remembered to recognise late parts and repeated stamps.
+const REMEMBERED_STAMPS: usize = 4096;
+
+/// A bounded set of recent stamps (oldest forgotten first).
+#[derive(Default)]
+struct RecentStamps {
+    order: std::collections::VecDeque<Stamp>,
+    set: std::collections::HashSet<Stamp>,
+}
+
+impl RecentStamps {
+    fn insert(&mut self, stamp: Stamp) {
+        if self.set.insert(stamp) {
+            self.order.push_back(stamp);
+            if self.order.len() > REMEMBERED_STAMPS {
+                if let Some(old) = self.order.pop_front() {
+                    self.set.remove(&old);
+                }
+            }
+        }
+    }
+
+    fn contains(&self, stamp: Stamp) -> bool {
+        self.set.contains(&stamp)
+    }
 }
 
 impl FrameAssembler {
     /// Waits for `expected` parts per stamp; the required parts are always expected.
     pub fn new(expected: &[PartKind]) -> Self {
         let expected = expected.iter().chain(PartKind::REQUIRED.iter()).fold(0, |m, k| m | k.bit());
-        Self { expected, pending: Default::default() }
+        Self { expected, pending: Default::default(), repeats: Default::default(), handed_out: None }
     }
 
-    /// Number of stamps still waiting for parts.
+    /// Also recognises parts for a stamp already handed out (the last 4096 are remembered): a
+    /// late part, or a second complete frame at one stamp, each reported as such and skipped.
+    /// For recorded bags; a live node leaves it off, since a restarted player sends the same
+    /// stamps again as new frames.
+    pub fn with_repeat_detection(mut self) -> Self {
+        self.handed_out = Some(RecentStamps::default());
+        self
+    }
+
+    /// Number of stamps still waiting for parts (late parts included).
     pub fn pending(&self) -> usize {
-        self.pending.len()
+        self.pending.len() + self.repeats.len()
+    }
+
+    /// The oldest stamp waiting for parts.
+    pub fn oldest(&self) -> Option<Stamp> {
+        let a = self.pending.keys().next().copied();
+        let b = self.repeats.keys().next().copied();
+        a.into_iter().chain(b).min()
+    }
+
+    /// The entry a part at `stamp` goes to: the open frame, or — when the frame at `stamp` was
+    /// already handed out — a repeat entry that is reported as late parts or a repeated frame.
+    fn entry(&mut self, stamp: Stamp) -> &mut Pending {
+        let seen = self.handed_out.as_ref().is_some_and(|h| h.contains(stamp));
+        if seen && !self.pending.contains_key(&stamp) {
+            self.repeats.entry(stamp).or_default()
+        } else {
+            self.pending.entry(stamp).or_default()
+        }
     }
 
     /// Adds a part; returns the frame when this completes it.
     pub fn push(&mut self, part: FramePart) -> Option<Assembled> {
         let stamp = part.stamp();
         let kind = part.kind();
-        let p = self.pending.entry(stamp).or_default();
+        let p = self.entry(stamp);
         let already = match part {
             FramePart::CameraInfo { intrinsics, .. } => p.intrinsics.replace(intrinsics).is_some(),
             FramePart::Correspondences { camera_frame_id, map_frame_id, correspondences, .. } => {
@@ -263,7 +325,7 @@ impl FrameAssembler {
 
     /// Records that the part `kind` of the frame at `stamp` could not be decoded.
     pub fn push_error(&mut self, stamp: Stamp, kind: PartKind, reason: impl std::fmt::Display) -> Option<Assembled> {
-        let p = self.pending.entry(stamp).or_default();
+        let p = self.entry(stamp);
         p.errors.push(format!("{}: {reason}", kind.name()));
         p.resolved |= kind.bit();
         self.complete_if_ready(stamp)
@@ -274,35 +336,92 @@ impl FrameAssembler {
     pub fn expire(&mut self, now: Stamp, timeout_ns: i64) -> Vec<Assembled> {
         let cutoff = now.saturating_sub(timeout_ns);
         let old: Vec<Stamp> = self.pending.range(..cutoff).map(|(s, _)| *s).collect();
-        old.into_iter()
+        let late: Vec<Stamp> = self.repeats.range(..cutoff).map(|(s, _)| *s).collect();
+        let mut out: Vec<Assembled> = old
+            .into_iter()
             .filter_map(|s| {
                 let mut p = self.pending.remove(&s)?;
                 p.errors.push(format!("timed out after {} ms waiting for parts", timeout_ns / 1_000_000));
                 Some(self.assemble(s, p))
             })
-            .collect()
+            .collect();
+        out.extend(late.into_iter().filter_map(|s| self.take_repeat(s)));
+        out
+    }
+
+    /// Hands out the oldest waiting frame as it is (the caller bounds how many wait), noting
+    /// `reason`.
+    pub fn take_oldest(&mut self, reason: String) -> Option<Assembled> {
+        let stamp = self.oldest()?;
+        self.take(stamp, reason)
+    }
+
+    /// Late parts at `stamp` (its frame was handed out before they came): reported, no frame.
+    fn take_repeat(&mut self, stamp: Stamp) -> Option<Assembled> {
+        let p = self.repeats.remove(&stamp)?;
+        let parts: Vec<&str> = PartKind::ALL.iter().filter(|k| p.resolved & k.bit() != 0).map(|k| k.name()).collect();
+        let mut errors = vec![format!(
+            "late part ({}) for the frame at stamp {stamp}, which was already handed out; skipped",
+            parts.join(", ")
+        )];
+        errors.extend(p.errors);
+        Some(Assembled::Dropped(IncompleteFrame {
+            stamp,
+            missing: Vec::new(),
+            errors,
+            dropped: true,
+            repeat: true,
+            has_correspondences: p.resolved & PartKind::Correspondences.bit() != 0,
+        }))
+    }
+
+    fn hand_out(&mut self, stamp: Stamp, p: Pending) -> Assembled {
+        if let Some(h) = self.handed_out.as_mut() {
+            h.insert(stamp);
+        }
+        self.assemble(stamp, p)
     }
 
     /// Hands out the frame waiting at `stamp` as it is, noting `reason` (e.g. a wall-clock
     /// time-out decided by the caller); `None` if nothing waits there.
     pub fn take(&mut self, stamp: Stamp, reason: String) -> Option<Assembled> {
-        let mut p = self.pending.remove(&stamp)?;
+        let Some(mut p) = self.pending.remove(&stamp) else { return self.take_repeat(stamp) };
         p.errors.push(reason);
-        Some(self.assemble(stamp, p))
+        Some(self.hand_out(stamp, p))
     }
 
-    /// Hands out every frame still waiting, sorted by stamp.
+    /// Hands out every frame still waiting, sorted by stamp (late parts after the frames).
     pub fn finish(&mut self) -> Vec<Assembled> {
-        std::mem::take(&mut self.pending).into_iter().map(|(s, p)| self.assemble(s, p)).collect()
+        let mut out: Vec<Assembled> =
+            std::mem::take(&mut self.pending).into_iter().map(|(s, p)| self.hand_out(s, p)).collect();
+        let late: Vec<Stamp> = self.repeats.keys().copied().collect();
+        out.extend(late.into_iter().filter_map(|s| self.take_repeat(s)));
+        out
     }
 
     fn complete_if_ready(&mut self, stamp: Stamp) -> Option<Assembled> {
+        if self.repeats.get(&stamp).is_some_and(|p| p.resolved & self.expected == self.expected) {
+            // Every part again at a stamp already handed out: a second frame with that stamp.
+            let p = self.repeats.remove(&stamp)?;
+            let mut errors = vec![format!(
+                "repeated stamp: a second complete frame at stamp {stamp} (the first was handed out); skipped"
+            )];
+            errors.extend(p.errors);
+            return Some(Assembled::Dropped(IncompleteFrame {
+                stamp,
+                missing: Vec::new(),
+                errors,
+                dropped: true,
+                repeat: true,
+                has_correspondences: p.resolved & PartKind::Correspondences.bit() != 0,
+            }));
+        }
         let ready = self.pending.get(&stamp).is_some_and(|p| p.resolved & self.expected == self.expected);
         if !ready {
             return None;
         }
         let p = self.pending.remove(&stamp)?;
-        Some(self.assemble(stamp, p))
+        Some(self.hand_out(stamp, p))
     }
 
     fn assemble(&self, stamp: Stamp, p: Pending) -> Assembled {
@@ -316,7 +435,20 @@ impl FrameAssembler {
         };
         let missing: Vec<&'static str> =
             PartKind::ALL.iter().filter(|k| self.expected & k.bit() != 0 && !present(**k)).map(|k| k.name()).collect();
-        let report = |dropped| IncompleteFrame { stamp, missing: missing.clone(), errors: p.errors.clone(), dropped };
+        let has_correspondences = p.resolved & PartKind::Correspondences.bit() != 0;
+        let report = |dropped| IncompleteFrame {
+            stamp,
+            missing: missing.clone(),
+            errors: p.errors.clone(),
+            dropped,
+            repeat: false,
+            has_correspondences,
+        };
+        if stamp < 0 {
+            let mut r = report(true);
+            r.errors.insert(0, format!("negative header.stamp {stamp} ns (before 1970); skipped"));
+            return Assembled::Dropped(r);
+        }
         let (Some(intrinsics), Some((camera_frame_id, map_frame_id, correspondences))) =
             (p.intrinsics, p.correspondences.clone())
         else {
@@ -344,79 +476,5 @@ impl FrameAssembler {
 }
 
 #[cfg(test)]
-mod assembler_tests {
-    use super::*;
-
-    fn info(stamp: Stamp) -> FramePart {
-        let intrinsics = Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
-        FramePart::CameraInfo { stamp, intrinsics }
-    }
-
-    fn corr(stamp: Stamp) -> FramePart {
-        FramePart::Correspondences {
-            stamp,
-            camera_frame_id: "cam".into(),
-            map_frame_id: "map".into(),
-            correspondences: vec![],
-        }
-    }
-
-    #[test]
-    fn completes_when_expected_parts_arrive_in_any_order() {
-        let mut a = FrameAssembler::new(&[PartKind::DepthPrior]);
-        assert!(a.push(corr(2)).is_none());
-        assert!(a.push(info(1)).is_none());
-        assert!(a.push(info(2)).is_none());
-        let done = a.push(FramePart::DepthPrior { stamp: 2, depth: DepthImage::new(1, 1, vec![1.0]) });
-        match done {
-            Some(Assembled::Complete(f)) => {
-                assert_eq!(f.stamp, 2);
-                assert_eq!(f.camera_frame_id, "cam");
-                assert!(f.depth_prior.is_some());
-            }
-            other => panic!("{other:?}"),
-        }
-        let rest = a.finish();
-        assert_eq!(rest.len(), 1);
-        match &rest[0] {
-            Assembled::Dropped(r) => {
-                assert_eq!(r.stamp, 1);
-                assert_eq!(r.missing, vec!["correspondences", "depth_prior"]);
-                assert!(r.dropped);
-            }
-            other => panic!("{other:?}"),
-        }
-    }
-
-    #[test]
-    fn decode_errors_resolve_the_part_and_are_reported() {
-        let mut a = FrameAssembler::new(&[PartKind::GroundTruthPose]);
-        a.push(info(5));
-        a.push(corr(5));
-        match a.push_error(5, PartKind::GroundTruthPose, "bad quaternion") {
-            Some(Assembled::Partial(f, r)) => {
-                assert_eq!(f.stamp, 5);
-                assert_eq!(r.missing, vec!["ground_truth_pose"]);
-                assert_eq!(r.errors, vec!["ground_truth_pose: bad quaternion".to_string()]);
-                assert!(!r.dropped);
-            }
-            other => panic!("{other:?}"),
-        }
-        assert_eq!(a.pending(), 0);
-    }
-
-    #[test]
-    fn expire_hands_out_old_frames_only() {
-        let mut a = FrameAssembler::new(&[PartKind::Image]);
-        a.push(info(100));
-        a.push(corr(100));
-        a.push(info(1_000_000_000));
-        let out = a.expire(1_000_000_000, 500_000_000);
-        assert_eq!(out.len(), 1);
-        let (frames, reports) = Assembled::split(out);
-        assert_eq!(frames.len(), 1);
-        assert_eq!(reports[0].missing, vec!["image"]);
-        assert!(reports[0].errors[0].contains("timed out"));
-        assert_eq!(a.pending(), 1);
-    }
-}
+#[path = "frame_tests.rs"]
+mod assembler_tests;

@@ -8,7 +8,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use angle_i2p::app::{self, describe};
-use angle_i2p::bag::{read_frames, write_input_bag};
+use angle_i2p::bag::write_input_bag;
 use angle_i2p::eval::{format_table, median};
 use angle_i2p::params::Params;
 use angle_i2p::pipeline::{Localizer, Method};
@@ -107,9 +107,12 @@ enum Command {
     Play(angle_i2p::play::PlayArgs),
     /// Write a synthetic bag (room of planes and boxes, camera path, ground truth).
     Synth {
-        /// Output bag directory (replaced if it exists).
+        /// Output bag directory (must not exist or be empty, unless --force).
         #[arg(long)]
         out: PathBuf,
+        /// Replace a non-empty --out directory (everything in it is deleted).
+        #[arg(long)]
+        force: bool,
         /// Tier: sift, hard or extreme.
         #[arg(long, default_value = "hard")]
         preset: String,
@@ -303,14 +306,9 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Eval { bag, est, json, params_file, report } => {
             let params = load_params(params_file.as_deref())?;
-            let input = read_frames(&bag, &params.topics)?;
-            let mut rows = vec![("raw matches (IR only)".to_string(), app::raw_inlier_ratio(&input))];
-            let mut evaluations = Vec::new();
-            for e in &est {
-                let ev =
-                    app::evaluate(&input, e, &params.topics).with_context(|| format!("evaluating {}", e.display()))?;
-                evaluations.push(ev);
-            }
+            let run = app::evaluate_bags(&bag, &est, &params)?;
+            let mut rows = vec![("raw matches (IR only)".to_string(), run.raw.clone())];
+            let mut evaluations = run.evaluations;
             // Rows of one method (variants of it) are told apart by their output directory.
             let methods: Vec<String> = evaluations.iter().map(|ev| ev.method.clone()).collect();
             for (ev, e) in evaluations.iter_mut().zip(&est) {
@@ -324,19 +322,30 @@ fn run(cli: Cli) -> Result<()> {
             if json {
                 let obj: serde_json::Map<String, serde_json::Value> = evaluations
                     .iter()
-                    .map(|ev| Ok((ev.method.clone(), serde_json::to_value(&ev.summary)?)))
+                    .map(|ev| {
+                        let mut row = serde_json::to_value(&ev.summary)?;
+                        if let Some(o) = row.as_object_mut() {
+                            o.insert("no_pose".into(), serde_json::to_value(&ev.no_pose)?);
+                        }
+                        Ok((ev.method.clone(), row))
+                    })
                     .collect::<Result<_>>()?;
                 println!("{}", serde_json::to_string_pretty(&obj)?);
             } else {
                 println!("{}", bag.display());
                 print!("{}", format_table(&rows));
+                print!("{}", app::format_no_pose(&evaluations, run.without_ground_truth));
             }
             if let Some(dir) = report {
+                // The pictures need every frame at once (ground truth, images): read apart from
+                // the streaming evaluation, only when asked for.
+                let input = angle_i2p::bag::read_frames_limited(&bag, &params.topics, &params.limits)?;
                 write_report(&bag, &input, &params, &rows[0].1, &evaluations, &est, &dir)?;
             }
             Ok(())
         }
-        Command::Synth { out, preset, config, seed, frames, inlier_ratio, correspondences } => {
+        Command::Synth { out, preset, config, seed, frames, inlier_ratio, correspondences, force } => {
+            app::check_synth_out(&out, force)?;
             let Some(mut cfg) = SynthConfig::preset(&preset) else {
                 bail!("unknown preset {preset:?}: one of {}", PRESETS.join(", "));
             };

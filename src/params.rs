@@ -42,6 +42,8 @@ pub struct Params {
     pub topics: TopicMap,
     /// The live node: queue, frame matching, TF, diagnostics, debug image.
     pub node: NodeParams,
+    /// How much one input may make us hold or compute ([`crate::limits`]).
+    pub limits: crate::limits::InputLimits,
 }
 
 #[derive(Debug, thiserror::Error)]

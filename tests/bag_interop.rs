@@ -100,7 +100,12 @@ fn python_written_fixture_decodes_to_frames() {
     let map = read.map.unwrap();
     assert_eq!(map.points.len(), 4, "the NaN point is skipped");
     assert_eq!(read.frames.len(), 3);
-    assert!(read.incomplete.is_empty(), "{:?}", read.incomplete);
+    // The fixture's scores are random normals: those outside [0, 1] are clamped, and said so.
+    assert!(
+        read.incomplete.iter().all(|i| !i.dropped && i.errors.iter().all(|e| e.contains("clamped"))),
+        "{:?}",
+        read.incomplete
+    );
     let f = &read.frames[0];
     assert_eq!(f.intrinsics.fx, 525.0);
     assert_eq!(f.correspondences.len(), 4);

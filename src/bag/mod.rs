@@ -4,11 +4,15 @@
 //! Bags are directories with `metadata.yaml` and `.mcap` files (profile `ros2`, CDR
 //! messages, `ros2msg` schemas), as written by `ros2 bag record -s mcap` and rosbags.
 
+mod frames;
 pub mod metadata;
 mod reader;
 mod writer;
 
-pub use reader::{BagChannel, BagMessage, BagReader};
+pub use frames::{decode_map, expected_types, limit_frame, DecodedMap, FrameStream};
+pub use reader::{
+    storage_files, BagChannel, BagMessage, BagMessages, BagReader, ReadOptions, DEFAULT_MAX_RECORD_BYTES,
+};
 pub use writer::{BagWriter, ChunkCompression, LIBRARY};
 
 use std::path::{Path, PathBuf};
@@ -16,7 +20,8 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::frame::Frame;
-use crate::frame::{Assembled, FrameAssembler, FramePart, IncompleteFrame, MapCloud, PartKind, Stamp};
+use crate::frame::{Assembled, FramePart, IncompleteFrame, MapCloud, PartKind};
+use crate::limits::InputLimits;
 use crate::msgs::{self, convert, from_cdr, MsgError};
 
 /// Why a bag could not be read or written; every variant names the file.
@@ -44,6 +49,8 @@ pub enum BagError {
     Write { path: PathBuf, reason: String },
     #[error("{path}: {topic}: {source}")]
     Message { path: PathBuf, topic: String, source: MsgError },
+    #[error("{path}: topic {topic} carries {found}, expected {expected}")]
+    WrongType { path: PathBuf, topic: String, expected: String, found: String },
 }
 
 /// Topic names, inputs and outputs; defaults are those of the shared bags.
@@ -129,11 +136,22 @@ pub struct BagFrames {
     pub issues: Vec<MessageIssue>,
 }
 
-/// Decodes one frame input message into its part.
+/// Decodes one frame input message into its part, with the default [`InputLimits`].
 pub fn decode_part(kind: PartKind, data: &[u8]) -> Result<FramePart, MsgError> {
+    decode_part_limited(kind, data, &InputLimits::default())
+}
+
+fn check_side(what: &'static str, width: u32, height: u32, limits: &InputLimits) -> Result<(), MsgError> {
+    crate::limits::check_image_side(what, width, height, limits).map_err(|reason| MsgError::Invalid { what, reason })
+}
+
+/// Decodes one frame input message into its part; a CameraInfo or depth image larger than
+/// `limits.max_image_side` is refused.
+pub fn decode_part_limited(kind: PartKind, data: &[u8], limits: &InputLimits) -> Result<FramePart, MsgError> {
     Ok(match kind {
         PartKind::CameraInfo => {
             let m: msgs::CameraInfo = from_cdr(data)?;
+            check_side("CameraInfo", m.width, m.height, limits)?;
             FramePart::CameraInfo {
                 stamp: convert::stamp(&m.header),
                 intrinsics: convert::intrinsics_from_camera_info(&m)?,
@@ -150,6 +168,7 @@ pub fn decode_part(kind: PartKind, data: &[u8]) -> Result<FramePart, MsgError> {
         }
         PartKind::DepthPrior => {
             let m: msgs::Image = from_cdr(data)?;
+            check_side("depth prior", m.width, m.height, limits)?;
             FramePart::DepthPrior { stamp: convert::stamp(&m.header), depth: convert::depth_from_image(&m)? }
         }
         PartKind::Image => {
@@ -162,56 +181,40 @@ pub fn decode_part(kind: PartKind, data: &[u8]) -> Result<FramePart, MsgError> {
         }
         PartKind::GroundTruthDepth => {
             let m: msgs::Image = from_cdr(data)?;
+            check_side("ground-truth depth", m.width, m.height, limits)?;
             FramePart::GroundTruthDepth { stamp: convert::stamp(&m.header), depth: convert::depth_from_image(&m)? }
         }
     })
 }
 
-/// Reads the map and all frames of a bag, joining topics by `header.stamp`.
+/// Reads the map and all frames of a bag, joining topics by `header.stamp`, with the default
+/// [`InputLimits`] (in memory: for small bags and tests; `replay` and `eval` stream).
 ///
 /// A frame waits for every part whose topic exists in the bag; a missing part, or a message
 /// that fails to decode (reported with topic, stamp and reason), never aborts the bag.
 pub fn read_frames(path: impl AsRef<Path>, topics: &TopicMap) -> Result<BagFrames, BagError> {
-    let reader = BagReader::open(path)?;
-    let expected: Vec<PartKind> = PartKind::ALL
-        .into_iter()
-        .filter(|k| reader.channels().iter().any(|c| c.topic == topics.topic_of(*k)))
-        .collect();
-    let mut assembler = FrameAssembler::new(&expected);
-    let mut out = BagFrames::default();
+    read_frames_limited(path, topics, &InputLimits::default())
+}
+
+pub fn read_frames_limited(
+    path: impl AsRef<Path>,
+    topics: &TopicMap,
+    limits: &InputLimits,
+) -> Result<BagFrames, BagError> {
+    let mut stream = FrameStream::open(path, topics, limits)?;
     let mut assembled = Vec::new();
-    for m in reader.messages() {
-        let topic = m.topic();
-        if topic == topics.map {
-            let issue = |reason: String| MessageIssue { topic: topic.into(), log_time: m.log_time, reason };
-            if out.map.is_some() {
-                out.issues.push(issue("another map message; kept the first".into()));
-                continue;
-            }
-            match from_cdr::<msgs::PointCloud2>(&m.data).and_then(|c| convert::map_cloud_from_point_cloud(&c)) {
-                Ok(map) => out.map = Some(map),
-                Err(e) => out.issues.push(issue(e.to_string())),
-            }
-            continue;
-        }
-        let Some(kind) = topics.part_of(topic) else { continue };
-        let done = match decode_part(kind, &m.data) {
-            Ok(part) => assembler.push(part),
-            Err(e) => {
-                // Attribute the failure to the message's stamp when its header is readable.
-                let stamp: Stamp =
-                    msgs::peek_header(&m.data).map(|h| convert::stamp(&h)).unwrap_or(m.log_time as Stamp);
-                assembler.push_error(stamp, kind, format!("{topic} at stamp {stamp}: {e}"))
-            }
-        };
-        assembled.extend(done);
+    while let Some(a) = stream.next_frame()? {
+        assembled.push(a);
     }
-    assembled.extend(assembler.finish());
     assembled.sort_by_key(Assembled::stamp);
     let (frames, incomplete) = Assembled::split(assembled);
-    out.frames = frames;
-    out.incomplete = incomplete;
-    Ok(out)
+    let mut issues = std::mem::take(&mut stream.issues);
+    issues.extend(stream.limit_counts.summary().into_iter().map(|reason| MessageIssue {
+        topic: topics.correspondences.clone(),
+        log_time: 0,
+        reason,
+    }));
+    Ok(BagFrames { map: stream.map.take(), frames, incomplete, issues })
 }
 
 /// Writes an input bag in the layout of the shared bags: the map once first (stamp 100 ms
@@ -258,7 +261,7 @@ pub fn write_input_bag(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::{Correspondence, EncodedImage, GroundTruth};
+    use crate::frame::{Correspondence, EncodedImage, GroundTruth, Stamp};
     use crate::geometry::{DepthImage, Intrinsics};
     use nalgebra::{Isometry3, Point2, Point3, Vector3};
 

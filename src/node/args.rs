@@ -319,6 +319,7 @@ pub fn resolve_params(params_file: Option<&Path>, args: &RosArgs, names: &Names)
     let mut base = serde_yaml::to_value(Params::default()).map_err(|e| ArgsError::Params(e.to_string()))?;
     deep_merge(&mut base, &overrides);
     let params: Params = serde_yaml::from_value(base).map_err(|e| ArgsError::Params(format!("parameters: {e}")))?;
+    params.validate().map_err(|e| ArgsError::Params(e.to_string()))?;
     let node = params.node.clone();
     if node.queue_depth == 0 {
         return Err(ArgsError::Params("queue_depth must be at least 1".into()));

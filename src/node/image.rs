@@ -64,9 +64,21 @@ pub fn rgb_from_image(msg: &Image) -> Result<RgbImage, String> {
 
 /// A `sensor_msgs/CompressedImage` (JPEG, PNG) → RGB.
 pub fn rgb_from_compressed(msg: &CompressedImage) -> Result<RgbImage, String> {
-    image::load_from_memory(&msg.data)
-        .map(|img| img.to_rgb8())
-        .map_err(|e| format!("cannot decode the {:?} image: {e}", msg.format))
+    rgb_from_compressed_within(msg, crate::limits::InputLimits::default().max_image_side)
+}
+
+/// Like [`rgb_from_compressed`], refusing an image wider or taller than `max_side` (its header
+/// is read before any pixel is decoded, so a small file declaring a huge image costs nothing).
+pub fn rgb_from_compressed_within(msg: &CompressedImage, max_side: u32) -> Result<RgbImage, String> {
+    let fail = |e: image::ImageError| format!("cannot decode the {:?} image: {e}", msg.format);
+    let mut reader =
+        image::ImageReader::new(std::io::Cursor::new(&msg.data)).with_guessed_format().map_err(|e| fail(e.into()))?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(max_side);
+    limits.max_image_height = Some(max_side);
+    limits.max_alloc = Some(u64::from(max_side) * u64::from(max_side) * 4);
+    reader.limits(limits);
+    reader.decode().map(|img| img.to_rgb8()).map_err(|e| format!("{} (limits.max_image_side = {max_side})", fail(e)))
 }
 
 /// Packs a decoded image for the frame.
@@ -204,6 +216,8 @@ mod tests {
         assert_eq!(from_encoded(&EncodedImage { format: "png".into(), data: png }).unwrap(), img);
         let junk = CompressedImage { header: Header::new(1, "cam"), format: "jpeg".into(), data: vec![1, 2, 3] };
         assert!(rgb_from_compressed(&junk).is_err());
+        let wide = rgb_from_compressed_within(&msg, 1).unwrap_err();
+        assert!(wide.contains("max_image_side"), "{wide}");
         assert!(from_encoded(&EncodedImage { format: format!("{RAW_RGB8} 9x9"), data: vec![0; 3] }).is_err());
         assert!(from_encoded(&EncodedImage { format: format!("{RAW_RGB8} nope"), data: vec![] }).is_err());
         let m = image_msg(4, "cam", img);

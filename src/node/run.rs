@@ -236,6 +236,9 @@ struct Ingest {
     map_changed: bool,
     queue: Arc<DropOldestQueue<Job>>,
     stats: Arc<Mutex<Stats>>,
+    /// The input limits applied to each assembled frame (`limits.*`).
+    limits: crate::limits::InputLimits,
+    limit_counts: crate::limits::LimitCounts,
 }
 
 impl Ingest {
@@ -314,6 +317,7 @@ impl Ingest {
 
     fn handle(&mut self, done: Option<Assembled>) {
         let Some(done) = done else { return };
+        let done = crate::bag::limit_frame(done, &self.limits, &mut self.limit_counts);
         let arrived = self.pending.remove(&done.stamp()).unwrap_or_else(Instant::now);
         match done {
             Assembled::Complete(frame) => self.enqueue(frame, arrived),
@@ -597,11 +601,17 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         dds::subscription::<msgs::CameraInfo>(&mut node, &topics.camera_info, &sensor)?,
         topics.camera_info.clone(),
         tx.clone(),
-        |m| {
-            let stamp = convert::stamp(&m.header);
-            let r =
-                convert::intrinsics_from_camera_info(&m).map(|intrinsics| FramePart::CameraInfo { stamp, intrinsics });
-            part_or_error(PartKind::CameraInfo, stamp, r)
+        {
+            let limits = params.limits.clone();
+            move |m| {
+                let stamp = convert::stamp(&m.header);
+                let r = crate::limits::check_image_side("CameraInfo", m.width, m.height, &limits).and_then(|()| {
+                    convert::intrinsics_from_camera_info(&m)
+                        .map(|intrinsics| FramePart::CameraInfo { stamp, intrinsics })
+                        .map_err(|e| e.to_string())
+                });
+                part_or_error(PartKind::CameraInfo, stamp, r)
+            }
         },
     )?);
     readers.push(spawn_reader(
@@ -624,10 +634,17 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             dds::subscription::<msgs::Image>(&mut node, &topics.depth_prior, &sensor)?,
             topics.depth_prior.clone(),
             tx.clone(),
-            |m| {
-                let stamp = convert::stamp(&m.header);
-                let r = convert::depth_from_image(&m).map(|depth| FramePart::DepthPrior { stamp, depth });
-                part_or_error(PartKind::DepthPrior, stamp, r)
+            {
+                let limits = params.limits.clone();
+                move |m| {
+                    let stamp = convert::stamp(&m.header);
+                    let r = crate::limits::check_image_side("depth prior", m.width, m.height, &limits).and_then(|()| {
+                        convert::depth_from_image(&m)
+                            .map(|depth| FramePart::DepthPrior { stamp, depth })
+                            .map_err(|e| e.to_string())
+                    });
+                    part_or_error(PartKind::DepthPrior, stamp, r)
+                }
             },
         )?);
     }
@@ -638,7 +655,13 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             dds::subscription::<msgs::CompressedImage>(&mut node, &topics.image, &sensor)?,
             topics.image.clone(),
             tx.clone(),
-            move |m| image_part(&src, ImageSource::COMPRESSED, &topic, &m.header, || img::rgb_from_compressed(&m)),
+            {
+                let side = params.limits.max_image_side;
+                move |m| {
+                    let rgb = || img::rgb_from_compressed_within(&m, side);
+                    image_part(&src, ImageSource::COMPRESSED, &topic, &m.header, rgb)
+                }
+            },
         )?);
         let (src, topic) = (source, topics.image_raw.clone());
         readers.push(spawn_reader(
@@ -652,7 +675,16 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         dds::subscription::<msgs::PointCloud2>(&mut node, &topics.map, &dds::latched())?,
         topics.map.clone(),
         tx.clone(),
-        |m| Some(Input::Map(convert::map_cloud_from_point_cloud(&m).map_err(|e| e.to_string()))),
+        {
+            let limits = params.limits.clone();
+            move |m| {
+                let map = convert::map_cloud_from_point_cloud(&m).map(|mut map| {
+                    crate::limits::limit_map(&mut map, &limits);
+                    map
+                });
+                Some(Input::Map(map.map_err(|e| e.to_string())))
+            }
+        },
     )?);
     if let Some(buffer) = &tf_buffer {
         for (topic, qos) in [(&topics.tf, dds::reliable(100)), (&topics.tf_static, dds::latched())] {
@@ -687,6 +719,8 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         map_changed: false,
         queue: queue.clone(),
         stats: stats.clone(),
+        limits: params.limits.clone(),
+        limit_counts: Default::default(),
     };
     let diag_period = Duration::from_millis(np.diagnostics_period_ms.max(50));
     let fq_name = names.fully_qualified();
@@ -780,6 +814,8 @@ mod tests {
             map_changed: false,
             queue: Arc::new(DropOldestQueue::new(2)),
             stats: Arc::new(Mutex::new(Stats::default())),
+            limits: Default::default(),
+            limit_counts: Default::default(),
         }
     }
 

@@ -96,7 +96,7 @@ impl FinalRefine {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Isometry3, Matrix6, Point2, Point3, Translation3, UnitQuaternion};
+    use nalgebra::{Isometry3, Matrix6, Point2, Translation3, UnitQuaternion};
 
     /// A close-range frame (0.4–0.9 m): 1 px noise on 150 matches, and 50 outliers 12–20 px off,
     /// all to the right (a biased group, as near misses on repeated texture are).

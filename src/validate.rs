@@ -1,0 +1,193 @@
+//! Parameter validation at load: every numeric parameter with a range it must lie in. A value
+//! outside it stops the command with an error naming the key, the value and the valid range,
+//! instead of failing every frame later (or panicking: `network.neighbours: 0` divides by it).
+
+use crate::params::Params;
+
+/// A parameter outside its valid range.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("parameter {key} = {value} is invalid: must be {range}")]
+pub struct InvalidParam {
+    /// Dotted name, e.g. `pnp.threshold_px`.
+    pub key: &'static str,
+    /// The value given, as written.
+    pub value: String,
+    /// The valid range, in words.
+    pub range: &'static str,
+}
+
+/// The ranges one check can ask for.
+#[derive(Clone, Copy)]
+enum Range {
+    /// Finite and > 0.
+    Positive,
+    /// Finite and ≥ 0.
+    NonNegative,
+    /// In [0, 1].
+    Unit,
+    /// In (0, 1).
+    OpenUnit,
+    /// In (0, 1].
+    Share,
+}
+
+impl Range {
+    fn holds(self, v: f64) -> bool {
+        match self {
+            Range::Positive => v.is_finite() && v > 0.0,
+            Range::NonNegative => v.is_finite() && v >= 0.0,
+            Range::Unit => (0.0..=1.0).contains(&v),
+            Range::OpenUnit => v > 0.0 && v < 1.0,
+            Range::Share => v > 0.0 && v <= 1.0,
+        }
+    }
+
+    fn words(self) -> &'static str {
+        match self {
+            Range::Positive => "a finite number > 0",
+            Range::NonNegative => "a finite number ≥ 0",
+            Range::Unit => "in [0, 1]",
+            Range::OpenUnit => "in (0, 1), exclusive",
+            Range::Share => "in (0, 1]",
+        }
+    }
+}
+
+fn real(key: &'static str, value: f64, range: Range) -> Result<(), InvalidParam> {
+    if range.holds(value) {
+        return Ok(());
+    }
+    Err(InvalidParam { key, value: value.to_string(), range: range.words() })
+}
+
+fn at_least(key: &'static str, value: u64, min: u64, range: &'static str) -> Result<(), InvalidParam> {
+    if value >= min {
+        return Ok(());
+    }
+    Err(InvalidParam { key, value: value.to_string(), range })
+}
+
+impl Params {
+    /// Checks every parameter with a range; the first one outside it is the error.
+    pub fn validate(&self) -> Result<(), InvalidParam> {
+        self.validate_pnp()?;
+        self.validate_rejection()?;
+        self.validate_limits()
+    }
+
+    fn validate_pnp(&self) -> Result<(), InvalidParam> {
+        let (p, v, f) = (&self.pnp, &self.verify, &self.final_refine);
+        real("pnp.threshold_px", p.threshold_px, Range::Positive)?;
+        real("pnp.confidence", p.confidence, Range::OpenUnit)?;
+        at_least("pnp.max_iterations", p.max_iterations as u64, 1, "at least 1")?;
+        if p.min_iterations > p.max_iterations {
+            return Err(InvalidParam {
+                key: "pnp.min_iterations",
+                value: p.min_iterations.to_string(),
+                range: "at most pnp.max_iterations",
+            });
+        }
+        at_least("pnp.min_inliers", p.min_inliers as u64, 3, "at least 3 (P3P)")?;
+        real("pnp.loss_scale_px", p.loss_scale_px, Range::Positive)?;
+        real("pnp.coverage_cell_px", p.coverage_cell_px, Range::NonNegative)?;
+        real("pnp.prior_tolerance", p.prior_tolerance, Range::NonNegative)?;
+        real("pnp.reference_focal_px", p.reference_focal_px, Range::NonNegative)?;
+        at_least("verify.candidates", v.candidates as u64, 1, "at least 1")?;
+        real("verify.accept", v.accept, Range::Unit)?;
+        real("verify.min_view", v.min_view, Range::Share)?;
+        real("verify.min_trust", v.min_trust, Range::Unit)?;
+        at_least("verify.check_every", v.check_every as u64, 1, "at least 1")?;
+        at_least("verify.max_iterations", v.max_iterations as u64, 1, "at least 1")?;
+        at_least("verify.max_map_points", v.max_map_points as u64, 1, "at least 1")?;
+        real("verify.cell_px", v.cell_px, Range::Positive)?;
+        real("verify.tolerance", v.tolerance, Range::Positive)?;
+        real("verify.coverage_weight", v.coverage_weight, Range::NonNegative)?;
+        real("final_refine.noise_multiple", f.noise_multiple, Range::Positive)?;
+        real("final_refine.min_threshold_px", f.min_threshold_px, Range::NonNegative)?;
+        real("final_refine.max_threshold_px", f.max_threshold_px, Range::Positive)?;
+        if f.min_threshold_px > f.max_threshold_px {
+            return Err(InvalidParam {
+                key: "final_refine.min_threshold_px",
+                value: f.min_threshold_px.to_string(),
+                range: "at most final_refine.max_threshold_px",
+            });
+        }
+        real("final_refine.loss_scale_px", f.loss_scale_px, Range::Positive)?;
+        let c = &self.cascade;
+        at_least("cascade.max_iterations", c.max_iterations as u64, 1, "at least 1")?;
+        real("cascade.min_inlier_ratio", c.min_inlier_ratio, Range::Unit)?;
+        real("cascade.min_cell_share", c.min_cell_share, Range::Unit)?;
+        at_least("cascade.grid_columns", c.grid_columns as u64, 1, "at least 1")
+    }
+
+    fn validate_rejection(&self) -> Result<(), InvalidParam> {
+        let (s, n, a) = (&self.spectral, &self.network, &self.align);
+        real("spectral.sigma_d", s.sigma_d, Range::Positive)?;
+        real("spectral.sigma_spread", s.sigma_spread, Range::NonNegative)?;
+        real("spectral.sigma_rel", s.sigma_rel, Range::NonNegative)?;
+        real("spectral.keep_ratio", s.keep_ratio, Range::Share)?;
+        if s.min_keep > s.max_keep {
+            return Err(InvalidParam {
+                key: "spectral.min_keep",
+                value: s.min_keep.to_string(),
+                range: "at most spectral.max_keep",
+            });
+        }
+        at_least("spectral.max_keep", s.max_keep as u64, 1, "at least 1")?;
+        at_least("spectral.iterations", s.iterations as u64, 1, "at least 1")?;
+        real("spectral.tolerance", s.tolerance as f64, Range::Positive)?;
+        real("network.tau", n.tau, Range::Unit)?;
+        at_least("network.intra_threads", n.intra_threads as u64, 1, "at least 1")?;
+        at_least("network.neighbours", n.neighbours as u64, 1, "at least 1")?;
+        at_least("network.keypoints", n.keypoints as u64, 1, "at least 1")?;
+        real("network.sigma_d", n.sigma_d, Range::Positive)?;
+        at_least("network.keypoint_iterations", n.keypoint_iterations as u64, 1, "at least 1")?;
+        real("align.shift_range", a.shift_range, Range::NonNegative)?;
+        at_least("align.shift_steps", a.shift_steps as u64, 1, "at least 1")?;
+        real("align.log_scale_window", a.log_scale_window, Range::Positive)?;
+        real("align.min_pair_fraction", a.min_pair_fraction, Range::Unit)
+    }
+
+    fn validate_limits(&self) -> Result<(), InvalidParam> {
+        let l = &self.limits;
+        at_least("limits.max_correspondences", l.max_correspondences as u64, 1, "at least 1")?;
+        at_least("limits.max_image_side", l.max_image_side as u64, 1, "at least 1")?;
+        at_least("limits.max_map_points", l.max_map_points as u64, 1, "at least 1")?;
+        at_least("limits.max_record_bytes", l.max_record_bytes, 1024, "at least 1024 bytes")?;
+        at_least("limits.max_pending_frames", l.max_pending_frames as u64, 1, "at least 1")?;
+        real("limits.merge_duplicates_above", l.merge_duplicates_above, Range::Unit)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid() {
+        assert_eq!(Params::default().validate(), Ok(()));
+    }
+
+    #[test]
+    fn bad_values_name_key_value_and_range() {
+        let cases: Vec<(&str, Box<dyn Fn(&mut Params)>)> = vec![
+            ("pnp.threshold_px", Box::new(|p| p.pnp.threshold_px = -1.0)),
+            ("pnp.threshold_px", Box::new(|p| p.pnp.threshold_px = f64::NAN)),
+            ("pnp.confidence", Box::new(|p| p.pnp.confidence = 2.0)),
+            ("pnp.max_iterations", Box::new(|p| p.pnp.max_iterations = 0)),
+            ("network.tau", Box::new(|p| p.network.tau = 1.5)),
+            ("spectral.keep_ratio", Box::new(|p| p.spectral.keep_ratio = 5.0)),
+            ("verify.accept", Box::new(|p| p.verify.accept = 2.0)),
+            ("network.neighbours", Box::new(|p| p.network.neighbours = 0)),
+            ("limits.max_correspondences", Box::new(|p| p.limits.max_correspondences = 0)),
+        ];
+        for (key, set) in cases {
+            let mut p = Params::default();
+            set(&mut p);
+            let err = p.validate().unwrap_err();
+            assert_eq!(err.key, key);
+            let text = err.to_string();
+            assert!(text.contains(key) && text.contains("must be"), "{text}");
+        }
+    }
+}
