@@ -18,11 +18,13 @@ pub mod args;
 pub mod dds;
 pub mod diagnostics;
 pub mod image;
+pub mod qos_watch;
 pub mod queue;
 mod run;
 pub mod tf;
+mod topics;
 
-pub use args::{resolve_params, ArgsError, Names, NodeParams, ResolvedParams, RosArgs};
+pub use args::{resolve_params, ArgsError, LogLevel, MapQos, Names, NodeParams, ResolvedParams, RosArgs};
 pub use diagnostics::{status_value, Stats, NODE_STATUS_NAME};
 pub use queue::DropOldestQueue;
 pub use run::run_node;
@@ -49,6 +51,15 @@ pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     let args = RosArgs::parse(&config.ros_args)?;
     let names = Names::new(NODE_NAME, &args);
     let resolved = resolve_params(config.params_file.as_deref(), &args, &names)?;
+    if let Some(level) = args.log_level {
+        run::set_log_level(level);
+    }
+    if let Some(enclave) = &args.enclave {
+        eprintln!("[angle_i2p] WARN enclave {enclave:?} accepted but not applied: DDS security is not built in");
+    }
+    for flag in &args.ignored {
+        eprintln!("[angle_i2p] {flag}: accepted, no effect (the node logs to stderr only)");
+    }
     let runtime =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().thread_name("angle_i2p").build()?;
     runtime.block_on(run_node(names, resolved, config.record))

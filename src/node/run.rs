@@ -12,58 +12,42 @@ use futures::StreamExt;
 use ros2_client::{Publisher, Subscription};
 use tokio::sync::mpsc;
 
-use super::args::{Names, NodeParams, ResolvedParams};
+use super::args::{LogLevel, MapQos, Names, NodeParams, ResolvedParams};
 use super::dds;
 use super::diagnostics::Stats;
 use super::image as img;
+use super::qos_watch::{InputRequirement, OfferedQos, QosWatch};
 use super::queue::DropOldestQueue;
 use super::tf::{self, TfBuffer};
+pub use super::topics::Topics;
 use crate::bag::BagWriter;
 use crate::frame::{Assembled, Frame, FrameAssembler, FramePart, IncompleteFrame, MapCloud, PartKind, Stamp};
 use crate::msgs::{self, convert, RosMessage};
 use crate::pipeline::{Localization, Localizer, Method};
 
-/// Resolved topic names of the node.
-#[derive(Clone, Debug)]
-pub struct Topics {
-    pub camera_info: String,
-    pub image: String,
-    pub image_raw: String,
-    pub depth_prior: String,
-    pub correspondences: String,
-    pub map: String,
-    pub pose: String,
-    pub pose_with_covariance: String,
-    pub output_correspondences: String,
-    pub diagnostics: String,
-    pub tf: String,
-    pub tf_static: String,
-    pub debug_image: String,
+/// The node's `--log-level` (`LogLevel as u8`; info by default).
+static LOG_LEVEL: AtomicU8 = AtomicU8::new(LogLevel::Info as u8);
+
+/// Sets the level below which the node's messages are not printed.
+pub fn set_log_level(level: LogLevel) {
+    LOG_LEVEL.store(level as u8, Ordering::Relaxed);
 }
 
-impl Topics {
-    pub fn new(params: &ResolvedParams, names: &Names) -> Self {
-        let (t, n) = (&params.params.topics, &params.node);
-        Self {
-            camera_info: names.resolve(&t.camera_info),
-            image: names.resolve(&t.image),
-            image_raw: names.resolve(&n.image_raw_topic),
-            depth_prior: names.resolve(&t.depth_prior),
-            correspondences: names.resolve(&t.correspondences),
-            map: names.resolve(&t.map),
-            pose: names.resolve(&t.pose),
-            pose_with_covariance: names.resolve(&t.pose_with_covariance),
-            output_correspondences: names.resolve(&t.output_correspondences),
-            diagnostics: names.resolve(&n.diagnostics_topic),
-            tf: names.resolve(&n.tf_topic),
-            tf_static: names.resolve(&n.tf_static_topic),
-            debug_image: names.resolve(&n.debug_image_topic),
-        }
+fn log_at(level: LogLevel, msg: impl std::fmt::Display) {
+    if level as u8 >= LOG_LEVEL.load(Ordering::Relaxed) {
+        let tag = if level >= LogLevel::Warn { "WARN " } else { "" };
+        eprintln!("[angle_i2p] {tag}{msg}");
     }
 }
 
+/// Progress (info).
 fn log(msg: impl std::fmt::Display) {
-    eprintln!("[angle_i2p] {msg}");
+    log_at(LogLevel::Info, msg);
+}
+
+/// Something dropped, refused or failed (warn).
+fn warn(msg: impl std::fmt::Display) {
+    log_at(LogLevel::Warn, msg);
 }
 
 fn now_ns() -> i64 {
@@ -107,7 +91,7 @@ impl Recorder {
         let mut guard = self.writer.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(w) = guard.as_mut() {
             if let Err(e) = w.write(topic, now_ns(), msg) {
-                log(format!("recording {topic} failed: {e}"));
+                warn(format!("recording {topic} failed: {e}"));
                 lock(stats).error("record_failed", format!("recording {topic}: {e}"));
             }
         }
@@ -259,7 +243,7 @@ impl Ingest {
             }
             Input::PartError { kind, stamp, reason } => {
                 let stamp = self.snap(stamp);
-                log(format!("frame {stamp}: bad {}: {reason}", kind.name()));
+                warn(format!("frame {stamp}: bad {}: {reason}", kind.name()));
                 lock(&self.stats)
                     .error(&format!("invalid_{}", kind.name()), format!("frame {stamp}: {}: {reason}", kind.name()));
                 self.open(stamp);
@@ -267,6 +251,10 @@ impl Ingest {
                 self.handle(done);
             }
             Input::Map(Ok(map)) => {
+                if self.map.as_deref().is_some_and(|m| m.frame_id == map.frame_id && m.points == map.points) {
+                    // `map_qos: auto` reads the map twice from a latched publisher.
+                    return;
+                }
                 log(format!("map received: {} points in frame {:?}", map.points.len(), map.frame_id));
                 let mut s = lock(&self.stats);
                 s.maps_received += 1;
@@ -275,15 +263,15 @@ impl Ingest {
                 self.map_changed = true;
             }
             Input::Map(Err(reason)) => {
-                log(format!("bad map (kept the previous one): {reason}"));
+                warn(format!("bad map (kept the previous one): {reason}"));
                 lock(&self.stats).error("invalid_map", format!("map: {reason}"));
             }
             Input::ReadError { topic, reason } => {
-                log(format!("{topic}: undecodable message: {reason}"));
+                warn(format!("{topic}: undecodable message: {reason}"));
                 lock(&self.stats).error("undecodable_message", format!("{topic}: {reason}"));
             }
             Input::Invalid { reason, detail } => {
-                log(&detail);
+                warn(&detail);
                 lock(&self.stats).error(reason, detail);
             }
         }
@@ -327,7 +315,7 @@ impl Ingest {
 
     fn count_incomplete(&self, r: &IncompleteFrame) {
         let detail = crate::app::describe(r);
-        log(&detail);
+        warn(&detail);
         let mut s = lock(&self.stats);
         if r.dropped {
             let required = PartKind::REQUIRED.iter().map(|k| k.name()).find(|n| r.missing.contains(n));
@@ -349,7 +337,7 @@ impl Ingest {
         s.frames_in += 1;
         if self.require_map && self.map.is_none() {
             s.drop_frame("no_map", format!("frame {stamp}: no map received yet"));
-            log(format!("frame {stamp}: dropped, no map received yet"));
+            warn(format!("frame {stamp}: dropped, no map received yet"));
             return;
         }
         if let Some(map) = &self.map {
@@ -368,7 +356,7 @@ impl Ingest {
         stats.queued_max = stats.queued_max.max(self.queue.len());
         if let Some(old) = dropped {
             let msg = format!("frame {}: dropped, queue full (newer frame {stamp} arrived)", old.frame.stamp);
-            log(&msg);
+            warn(&msg);
             stats.drop_frame("queue_full", msg);
         }
     }
@@ -392,7 +380,7 @@ impl Outputs {
     async fn send<M: RosMessage + Clone + std::fmt::Debug>(&self, p: &Publisher<M>, topic: &str, msg: M) {
         self.recorder.write(topic, &msg, &self.stats);
         if let Err(e) = p.async_publish(msg).await {
-            log(format!("publishing on {topic} failed: {e:?}"));
+            warn(format!("publishing on {topic} failed: {e:?}"));
             lock(&self.stats).error("publish_failed", format!("{topic}: {e:?}"));
         }
     }
@@ -411,7 +399,7 @@ impl Outputs {
                 match self.tf_message(loc, pose) {
                     Ok(msg) => self.send(tf, &topics.tf, msg).await,
                     Err(detail) => {
-                        log(&detail);
+                        warn(&detail);
                         lock(&self.stats).error("no_odom_transform", detail);
                     }
                 }
@@ -495,7 +483,7 @@ async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outp
         let (back, frame, loc) = localize(localizer, job.frame).await;
         localizer = back;
         let Some(loc) = loc else {
-            log(format!("frame {stamp}: the localizer panicked; continuing with a fresh one"));
+            warn(format!("frame {stamp}: the localizer panicked; continuing with a fresh one"));
             let mut s = lock(&outputs.stats);
             s.frames_failed += 1;
             s.error("panic", format!("frame {stamp}: localizer panicked"));
@@ -516,7 +504,7 @@ async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outp
         if let Some(f) = &loc.failure {
             s.error(f.key(), format!("frame {stamp}: {f}"));
             drop(s);
-            log(format!("frame {stamp}: no pose: {f}"));
+            warn(format!("frame {stamp}: no pose: {f}"));
         }
     }
 }
@@ -541,6 +529,41 @@ async fn shutdown_signal() {
     {
         let _ = tokio::signal::ctrl_c().await;
     }
+}
+
+/// The stamp of the node's own messages (diagnostics): wall time, or with `use_sim_time` the
+/// newest input stamp the node has handled (the bag's time during a replay; 0 before any frame).
+fn node_stamp(use_sim_time: bool, stats: &Stats) -> Stamp {
+    if use_sim_time {
+        stats.last_stamp.unwrap_or(0)
+    } else {
+        now_ns()
+    }
+}
+
+/// The map subscription(s) of `map_qos`: reliable, keep last 1.
+fn map_qos_profiles(map_qos: MapQos) -> Vec<ros2_client::QosProfile> {
+    match map_qos {
+        MapQos::Auto => vec![dds::latched(), dds::reliable(1)],
+        MapQos::TransientLocal => vec![dds::latched()],
+        MapQos::Volatile => vec![dds::reliable(1)],
+    }
+}
+
+/// What each input topic needs from a publisher (the most lenient of the node's readers on
+/// it); the frame inputs are read best effort and match any publisher.
+fn input_requirements(topics: &Topics, map_qos: MapQos, reads_tf: bool) -> Vec<InputRequirement> {
+    let need = |topic: &str, needs_reliable: bool, needs_transient_local: bool| InputRequirement {
+        topic: topic.to_string(),
+        needs_reliable,
+        needs_transient_local,
+    };
+    let mut out = vec![need(&topics.map, true, map_qos == MapQos::TransientLocal)];
+    if reads_tf {
+        out.push(need(&topics.tf, true, false));
+        out.push(need(&topics.tf_static, true, true));
+    }
+    out
 }
 
 /// Runs the node until SIGINT/SIGTERM; `record` also writes every published message to a bag.
@@ -605,7 +628,8 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         },
     )?);
     readers.push(spawn_reader(
-        dds::subscription::<msgs::Correspondences>(&mut node, &topics.correspondences, &dds::reliable(10))?,
+        // Best effort: matches reliable and best-effort matchers alike.
+        dds::subscription::<msgs::Correspondences>(&mut node, &topics.correspondences, &dds::sensor_data(10))?,
         topics.correspondences.clone(),
         tx.clone(),
         |m| {
@@ -648,12 +672,14 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             move |m| image_part(&src, ImageSource::RAW, &topic, &m.header, || img::rgb_from_image(&m)),
         )?);
     }
-    readers.push(spawn_reader(
-        dds::subscription::<msgs::PointCloud2>(&mut node, &topics.map, &dds::latched())?,
-        topics.map.clone(),
-        tx.clone(),
-        |m| Some(Input::Map(convert::map_cloud_from_point_cloud(&m).map_err(|e| e.to_string()))),
-    )?);
+    for qos in map_qos_profiles(np.map_qos) {
+        readers.push(spawn_reader(
+            dds::subscription::<msgs::PointCloud2>(&mut node, &topics.map, &qos)?,
+            topics.map.clone(),
+            tx.clone(),
+            |m| Some(Input::Map(convert::map_cloud_from_point_cloud(&m).map_err(|e| e.to_string()))),
+        )?);
+    }
     if let Some(buffer) = &tf_buffer {
         for (topic, qos) in [(&topics.tf, dds::reliable(100)), (&topics.tf_static, dds::latched())] {
             let buffer = buffer.clone();
@@ -712,6 +738,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         topics.diagnostics,
     ));
 
+    let mut qos_watch = QosWatch::new(input_requirements(&topics, np.map_qos, tf_buffer.is_some()));
     let mut tick = tokio::time::interval(Duration::from_millis(20));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     let mut diag_tick = tokio::time::interval(diag_period);
@@ -727,10 +754,20 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             },
             _ = tick.tick() => ingest.expire(),
             _ = diag_tick.tick() => {
-                let msg = lock(&stats).report(now_ns(), &fq_name);
+                let offered: Vec<OfferedQos> =
+                    context.domain_participant().discovered_writers().iter().map(OfferedQos::from_discovery).collect();
+                for problem in qos_watch.check(&offered) {
+                    warn(&problem);
+                    lock(&stats).error("incompatible_qos", problem.to_string());
+                }
+                let msg = {
+                    let mut s = lock(&stats);
+                    let stamp = node_stamp(np.use_sim_time, &s);
+                    s.report(stamp, &fq_name)
+                };
                 recorder.write(&topics.diagnostics, &msg, &stats);
                 if let Err(e) = diag_pub.async_publish(msg).await {
-                    log(format!("publishing diagnostics failed: {e:?}"));
+                    warn(format!("publishing diagnostics failed: {e:?}"));
                 }
             }
         }
@@ -743,7 +780,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
     drop(readers);
     queue.close();
     if tokio::time::timeout(Duration::from_secs(30), worker_task).await.is_err() {
-        log("the worker did not finish within 30 s");
+        warn("the worker did not finish within 30 s");
     }
     let last = lock(&stats).report(now_ns(), &fq_name);
     recorder.write(&topics.diagnostics, &last, &stats);
@@ -751,7 +788,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
     if let Some(r) = recorder.finish() {
         match r {
             Ok(p) => log(format!("recorded to {}", p.display())),
-            Err(e) => log(format!("finishing the recording failed: {e:#}")),
+            Err(e) => warn(format!("finishing the recording failed: {e:#}")),
         }
     }
     node.stop_spinner();
