@@ -1,0 +1,197 @@
+//! The live node as a ROS 2 user meets it (issue 12), over DDS in a private network namespace:
+//! namespaces, QoS of other publishers, ROS-style params files and arguments.
+
+mod common;
+mod netns;
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use angle_i2p::bag::{read_frames, TopicMap};
+use angle_i2p::frame::Frame;
+use angle_i2p::msgs::{self, convert};
+use angle_i2p::node::dds;
+use angle_i2p::params::Params;
+use angle_i2p::pipeline::{Localizer, Method};
+use common::{binary, manifest};
+use netns::{enter_netns, mark_done, run_in_netns, Guard};
+
+const DOMAIN: &str = "19";
+
+fn start_node(log: &Path, args: &[&str]) -> Guard {
+    let log = std::fs::File::create(log).expect("node log");
+    let mut cmd = Command::new(binary());
+    cmd.arg("node").arg("--ros-args").args(args).env("ROS_DOMAIN_ID", DOMAIN).stdout(Stdio::null()).stderr(log);
+    Guard(cmd.spawn().expect("spawn angle-i2p node"))
+}
+
+fn read(log: &Path) -> String {
+    std::fs::read_to_string(log).unwrap_or_default()
+}
+
+/// A numeric value of the diagnostics of node `fq_name` (0 when absent).
+fn diag_of(d: &msgs::DiagnosticArray, fq_name: &str, key: &str) -> u64 {
+    d.status
+        .iter()
+        .filter(|s| s.hardware_id == fq_name)
+        .flat_map(|s| &s.values)
+        .find(|kv| kv.key == key)
+        .and_then(|kv| kv.value.parse().ok())
+        .unwrap_or(0)
+}
+
+/// The first frame of the shipped bag that plain RANSAC localizes, with the bag's map.
+fn ransac_frame() -> (Frame, angle_i2p::frame::MapCloud, nalgebra::Isometry3<f64>) {
+    let input = read_frames(manifest().join("bags/synth-hard"), &TopicMap::default()).expect("read bag");
+    let map = input.map.clone().expect("map");
+    let mut localizer = Localizer::new(Params { method: Method::Ransac, ..Params::default() });
+    localizer.set_map(&map);
+    let (frame, pose) = input
+        .frames
+        .iter()
+        .find_map(|f| localizer.process(f).pose.map(|p| (f.clone(), p)))
+        .expect("a frame RANSAC localizes");
+    (frame, map, pose)
+}
+
+/// One camera's publishers as a best-effort matcher and a volatile map server would have them.
+struct Camera {
+    info: ros2_client::Publisher<msgs::CameraInfo>,
+    corr: ros2_client::Publisher<msgs::Correspondences>,
+    map: ros2_client::Publisher<msgs::PointCloud2>,
+    pose: ros2_client::Subscription<msgs::PoseStamped>,
+}
+
+impl Camera {
+    fn new(ros: &mut ros2_client::Node, ns: &str) -> Self {
+        let best_effort = dds::sensor_data(10);
+        Self {
+            info: dds::publisher(ros, &format!("{ns}/camera/camera_info"), &best_effort).expect("pub"),
+            corr: dds::publisher(ros, &format!("{ns}/matcher/correspondences"), &best_effort).expect("pub"),
+            map: dds::publisher(ros, &format!("{ns}/map/points"), &dds::reliable(1)).expect("pub"),
+            pose: dds::subscription(ros, &format!("{ns}/angle_i2p/pose"), &dds::reliable(10)).expect("sub"),
+        }
+    }
+
+    fn matched(&self, ros: &ros2_client::Node) -> bool {
+        self.info.get_subscription_count(ros) > 0
+            && self.corr.get_subscription_count(ros) > 0
+            && self.map.get_subscription_count(ros) > 0
+            && self.pose.get_publisher_count(ros) > 0
+    }
+
+    fn publish_frame(&self, frame: &Frame, stamp: i64) {
+        let cam = frame.camera_frame_id.as_str();
+        self.info.publish(convert::camera_info(stamp, cam, &frame.intrinsics)).expect("info");
+        let corr = convert::correspondences_msg(stamp, cam, &frame.map_frame_id, &frame.correspondences);
+        self.corr.publish(corr).expect("corr");
+    }
+}
+
+fn wait_for(what: &str, logs: &[&Path], mut ok: impl FnMut() -> bool) {
+    let end = Instant::now() + Duration::from_secs(30);
+    while !ok() {
+        assert!(
+            Instant::now() < end,
+            "{what}: timed out\n{}",
+            logs.iter().map(|l| read(l)).collect::<Vec<_>>().join("\n---\n")
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn live_namespaces_qos_and_ros_params() {
+    run_in_netns("inner_namespaces_qos_and_ros_params");
+}
+
+/// Two nodes under `/cam0` and `/cam1` (a dotted-key params file, `--log-level`, `-e`,
+/// `use_sim_time`), fed by best-effort matchers and volatile map publishers: each localizes its
+/// own camera's frame on its own topics and nothing reaches the root names. A third node that
+/// insists on a latched map says why a volatile map publisher never reaches it.
+#[test]
+#[ignore = "runs inside a network namespace, via live_namespaces_qos_and_ros_params"]
+fn inner_namespaces_qos_and_ros_params() {
+    enter_netns("live_namespaces_qos_and_ros_params", DOMAIN);
+    let (frame, map, want) = ransac_frame();
+    let tmp = tempfile::tempdir().expect("tmp");
+    let params = tmp.path().join("params.yaml");
+    std::fs::write(
+        &params,
+        "/**:\n  ros__parameters:\n    method: ransac\n    node.diagnostics_period_ms: 200\n    \
+         node.frame_timeout_ms: 3000\n    pnp.min_inliers: 6\n",
+    )
+    .expect("params");
+    let params = params.to_str().expect("utf-8 path");
+    let logs: Vec<_> = ["cam0.log", "cam1.log", "latched.log"].iter().map(|n| tmp.path().join(n)).collect();
+    let common_args = ["--params-file", params, "--log-level", "info", "-e", "/angle_i2p", "-p", "use_sim_time:=true"];
+    let _cam0 = start_node(&logs[0], &[&["-r", "__ns:=/cam0"][..], &common_args].concat());
+    let _cam1 = start_node(&logs[1], &[&["-r", "__ns:=/cam1"][..], &common_args].concat());
+    let _latched =
+        start_node(&logs[2], &[&["-r", "__ns:=/cam2", "-p", "map_qos:=transient_local"][..], &common_args].concat());
+    let log_refs: Vec<&Path> = logs.iter().map(|p| p.as_path()).collect();
+
+    let context = dds::context().expect("context");
+    let mut ros = dds::node(&context, "/", "issue12_test").expect("node");
+    let _spinner = dds::spawn_spinner(&mut ros).expect("spinner");
+    let cams = [Camera::new(&mut ros, "/cam0"), Camera::new(&mut ros, "/cam1")];
+    let cam2_map = dds::publisher::<msgs::PointCloud2>(&mut ros, "/cam2/map/points", &dds::reliable(1)).expect("pub");
+    let root_pose =
+        dds::subscription::<msgs::PoseStamped>(&mut ros, "/angle_i2p/pose", &dds::reliable(10)).expect("sub");
+    let diag = dds::subscription::<msgs::DiagnosticArray>(&mut ros, "/diagnostics", &dds::reliable(50)).expect("sub");
+    wait_for("the namespaced nodes' readers match", &log_refs, || cams.iter().all(|c| c.matched(&ros)));
+    std::thread::sleep(Duration::from_millis(300));
+    for c in &cams {
+        c.map.publish(convert::point_cloud(frame.stamp, &map)).expect("map");
+    }
+    cam2_map.publish(convert::point_cloud(frame.stamp, &map)).expect("map");
+
+    // Each camera gets its own frame (its own stamp) and only its node answers.
+    let stamps = [frame.stamp + 1_000_000_000, frame.stamp + 2_000_000_000];
+    let mut got: [Option<msgs::PoseStamped>; 2] = [None, None];
+    let mut next_send = Instant::now();
+    wait_for("a pose from each namespaced node", &log_refs, || {
+        // Best effort: resend until the node has the map and answers.
+        if Instant::now() >= next_send {
+            for (c, s) in cams.iter().zip(stamps) {
+                c.publish_frame(&frame, s);
+            }
+            next_send = Instant::now() + Duration::from_secs(1);
+        }
+        for (i, c) in cams.iter().enumerate() {
+            while let Ok(Some((p, _))) = c.pose.take() {
+                got[i] = Some(p);
+            }
+        }
+        got.iter().all(Option::is_some)
+    });
+    for (i, p) in got.iter().enumerate() {
+        let p = p.as_ref().expect("pose");
+        assert_eq!(convert::stamp(&p.header), stamps[i], "camera {i} answered another camera's frame");
+        let t = want.translation.vector;
+        let d =
+            ((p.pose.position.x - t.x).powi(2) + (p.pose.position.y - t.y).powi(2) + (p.pose.position.z - t.z).powi(2))
+                .sqrt();
+        assert!(d < 1e-6, "camera {i}: position off by {d}");
+    }
+    assert!(matches!(root_pose.take(), Ok(None)), "a pose on the root /angle_i2p/pose");
+
+    // The latched-only node names the volatile map publisher it cannot hear.
+    let mut incompatible = 0;
+    wait_for("the latched-only node counts the incompatible map publisher", &log_refs, || {
+        while let Ok(Some((d, _))) = diag.take() {
+            incompatible = incompatible.max(diag_of(&d, "/cam2/angle_i2p", "error.incompatible_qos"));
+        }
+        incompatible >= 1
+    });
+    let latched_log = read(&logs[2]);
+    assert!(
+        latched_log.contains("/cam2/map/points offers durability volatile"),
+        "no QoS warning in the log:\n{latched_log}"
+    );
+    for log in &logs[..2] {
+        assert!(!read(log).contains("incompatible"), "{}", read(log));
+    }
+    mark_done();
+}
