@@ -179,12 +179,20 @@ fn inner_namespaces_qos_and_ros_params() {
 
     // The latched-only node names the volatile map publisher it cannot hear.
     let mut incompatible = 0;
+    let mut statuses: Vec<msgs::DiagnosticStatus> = Vec::new();
     wait_for("the latched-only node counts the incompatible map publisher", &log_refs, || {
         while let Ok(Some((d, _))) = diag.take() {
             incompatible = incompatible.max(diag_of(&d, "/cam2/angle_i2p", "error.incompatible_qos"));
+            statuses.extend(d.status);
         }
         incompatible >= 1
     });
+    // diagnostic_updater's names; the node that hears nothing is STALE.
+    let find = |hw: &str, name: &str| statuses.iter().rev().find(|s| s.hardware_id == hw && s.name == name).cloned();
+    let cam2 = find("/cam2/angle_i2p", "angle_i2p: localization").expect("cam2 status");
+    assert_eq!(cam2.level, msgs::DiagnosticStatus::STALE, "{cam2:?}");
+    let info = find("/cam0/angle_i2p", "angle_i2p: /cam0/camera/camera_info topic status").expect("topic status");
+    assert_ne!(info.level, msgs::DiagnosticStatus::STALE, "{info:?}");
     let latched_log = read(&logs[2]);
     assert!(
         latched_log.contains("/cam2/map/points offers durability volatile"),

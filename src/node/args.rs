@@ -36,6 +36,10 @@ pub struct NodeParams {
     pub expect_depth_prior: bool,
     /// Period of the aggregated `/diagnostics` message.
     pub diagnostics_period_ms: u64,
+    /// The recent window the diagnostics levels and topic rates are computed over.
+    pub diagnostics_window_s: f64,
+    /// Frames (and messages per input) per second below which the diagnostics WARN; 0: never.
+    pub min_rate_hz: f64,
     /// Publish `debug_image_topic` (sensor_msgs/Image rgb8): the camera image with kept
     /// correspondences green and rejected ones red. Subscribes to the compressed image topic
     /// (`topics.image`) and to `image_raw_topic` (sensor_msgs/Image rgb8, bgr8, mono8, rgba8,
@@ -81,6 +85,8 @@ impl Default for NodeParams {
             require_map: true,
             expect_depth_prior: true,
             diagnostics_period_ms: 1000,
+            diagnostics_window_s: 5.0,
+            min_rate_hz: 1.0,
             debug_image: false,
             debug_image_topic: "angle_i2p/debug_image".into(),
             image_raw_topic: "camera/image_raw".into(),
@@ -383,6 +389,8 @@ const NODE_KEYS: &[&str] = &[
     "require_map",
     "expect_depth_prior",
     "diagnostics_period_ms",
+    "diagnostics_window_s",
+    "min_rate_hz",
     "debug_image",
     "debug_image_topic",
     "image_raw_topic",
@@ -437,6 +445,12 @@ pub fn resolve_params(params_file: Option<&Path>, args: &RosArgs, names: &Names)
     deep_merge(&mut base, &overrides);
     let params: Params = serde_yaml::from_value(base).map_err(|e| ArgsError::Params(format!("parameters: {e}")))?;
     let node = params.node.clone();
+    if !(node.diagnostics_window_s.is_finite() && node.diagnostics_window_s > 0.0) {
+        return Err(ArgsError::Params(format!("diagnostics_window_s must be > 0, got {}", node.diagnostics_window_s)));
+    }
+    if !(node.min_rate_hz.is_finite() && node.min_rate_hz >= 0.0) {
+        return Err(ArgsError::Params(format!("min_rate_hz must be >= 0, got {}", node.min_rate_hz)));
+    }
     if node.queue_depth == 0 {
         return Err(ArgsError::Params("queue_depth must be at least 1".into()));
     }

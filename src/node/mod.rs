@@ -17,6 +17,7 @@
 pub mod args;
 pub mod dds;
 pub mod diagnostics;
+pub mod health;
 pub mod image;
 pub mod qos_watch;
 pub mod queue;
@@ -25,7 +26,7 @@ pub mod tf;
 mod topics;
 
 pub use args::{resolve_params, ArgsError, LogLevel, MapQos, Names, NodeParams, ResolvedParams, RosArgs};
-pub use diagnostics::{status_value, Stats, NODE_STATUS_NAME};
+pub use diagnostics::{status_name, status_value, Stats, LOCALIZATION_TASK};
 pub use queue::DropOldestQueue;
 pub use run::run_node;
 

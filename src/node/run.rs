@@ -15,6 +15,7 @@ use tokio::sync::mpsc;
 use super::args::{LogLevel, MapQos, Names, NodeParams, ResolvedParams};
 use super::dds;
 use super::diagnostics::Stats;
+use super::health::Health;
 use super::image as img;
 use super::qos_watch::{InputRequirement, OfferedQos, QosWatch};
 use super::queue::DropOldestQueue;
@@ -236,12 +237,14 @@ impl Ingest {
     fn on_input(&mut self, input: Input) {
         match input {
             Input::Part(part) => {
+                lock(&self.stats).health.heard(part.kind().name(), Instant::now());
                 let stamp = self.snap(part.stamp());
                 self.open(stamp);
                 let done = self.assembler.push(restamp(part, stamp));
                 self.handle(done);
             }
             Input::PartError { kind, stamp, reason } => {
+                lock(&self.stats).health.heard(kind.name(), Instant::now());
                 let stamp = self.snap(stamp);
                 warn(format!("frame {stamp}: bad {}: {reason}", kind.name()));
                 lock(&self.stats)
@@ -580,7 +583,15 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
     let context = dds::context()?;
     let mut node = dds::node(&context, &names.namespace, &names.node_name)?;
     let spinner = dds::spawn_spinner(&mut node)?;
-    let stats = Arc::new(Mutex::new(Stats::default()));
+    let mut health = Health::new(Duration::from_secs_f64(np.diagnostics_window_s), np.min_rate_hz, Instant::now());
+    health.watch_input(PartKind::CameraInfo.name(), &topics.camera_info);
+    health.watch_input(PartKind::Correspondences.name(), &topics.correspondences);
+    if np.expect_depth_prior && params.method != Method::Ransac {
+        health.watch_input(PartKind::DepthPrior.name(), &topics.depth_prior);
+    }
+    let mut initial = Stats::default();
+    initial.health = health;
+    let stats = Arc::new(Mutex::new(initial));
     let odom_frame = np.odom_frame.trim().trim_start_matches('/').to_string();
     let tf_buffer = (np.publish_tf && !odom_frame.is_empty()).then(|| Arc::new(Mutex::new(TfBuffer::default())));
 
@@ -763,7 +774,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
                 let msg = {
                     let mut s = lock(&stats);
                     let stamp = node_stamp(np.use_sim_time, &s);
-                    s.report(stamp, &fq_name)
+                    s.report(stamp, &names.node_name, &fq_name)
                 };
                 recorder.write(&topics.diagnostics, &msg, &stats);
                 if let Err(e) = diag_pub.async_publish(msg).await {
@@ -782,7 +793,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
     if tokio::time::timeout(Duration::from_secs(30), worker_task).await.is_err() {
         warn("the worker did not finish within 30 s");
     }
-    let last = lock(&stats).report(now_ns(), &fq_name);
+    let last = lock(&stats).report(now_ns(), &names.node_name, &fq_name);
     recorder.write(&topics.diagnostics, &last, &stats);
     let _ = tokio::time::timeout(Duration::from_millis(500), diag_pub.async_publish(last)).await;
     if let Some(r) = recorder.finish() {
