@@ -19,6 +19,7 @@ pub mod dds;
 pub mod diagnostics;
 pub mod health;
 pub mod image;
+pub mod install;
 pub mod qos_watch;
 pub mod queue;
 mod run;
@@ -51,7 +52,12 @@ pub struct NodeConfig {
 pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     let args = RosArgs::parse(&config.ros_args)?;
     let names = Names::new(NODE_NAME, &args);
-    let resolved = resolve_params(config.params_file.as_deref(), &args, &names)?;
+    let mut resolved = resolve_params(config.params_file.as_deref(), &args, &names)?;
+    if let Some(dirs) = std::env::current_exe().ok().as_deref().and_then(install::InstallDirs::of_binary) {
+        for change in dirs.resolve(&mut resolved.params) {
+            eprintln!("[angle_i2p] installed package: {change}");
+        }
+    }
     if let Some(level) = args.log_level {
         run::set_log_level(level);
     }
