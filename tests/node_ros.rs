@@ -109,7 +109,8 @@ fn live_namespaces_qos_and_ros_params() {
 /// Two nodes under `/cam0` and `/cam1` (a dotted-key params file, `--log-level`, `-e`,
 /// `use_sim_time`), fed by best-effort matchers and volatile map publishers: each localizes its
 /// own camera's frame on its own topics and nothing reaches the root names. A third node that
-/// insists on a latched map says why a volatile map publisher never reaches it.
+/// insists on a latched map says why a volatile map publisher never reaches it; a fourth reads its
+/// map from a PLY file (`map_path`).
 #[test]
 #[ignore = "runs inside a network namespace, via live_namespaces_qos_and_ros_params"]
 fn inner_namespaces_qos_and_ros_params() {
@@ -130,26 +131,45 @@ fn inner_namespaces_qos_and_ros_params() {
     let _cam1 = start_node(&logs[1], &[&["-r", "__ns:=/cam1"][..], &common_args].concat());
     let _latched =
         start_node(&logs[2], &[&["-r", "__ns:=/cam2", "-p", "map_qos:=transient_local"][..], &common_args].concat());
+    // The fourth camera's node reads its map from a binary PLY file (`map_path`), nothing on the topic.
+    let ply = tmp.path().join("map.ply");
+    let mut bytes = format!(
+        "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\nproperty float y\n\
+         property float z\nend_header\n",
+        map.points.len()
+    )
+    .into_bytes();
+    for p in &map.points {
+        [p.x, p.y, p.z].iter().for_each(|v| bytes.extend(v.to_le_bytes()));
+    }
+    std::fs::write(&ply, bytes).expect("ply");
+    let map_path = format!("map_path:={}", ply.display());
+    let map_frame = format!("map_frame_id:={}", map.frame_id);
+    let ply_log = tmp.path().join("ply.log");
+    let _cam3 =
+        start_node(&ply_log, &[&["-r", "__ns:=/cam3", "-p", &map_path, "-p", &map_frame][..], &common_args].concat());
+    let mut logs = logs;
+    logs.push(ply_log);
     let log_refs: Vec<&Path> = logs.iter().map(|p| p.as_path()).collect();
 
     let context = dds::context().expect("context");
     let mut ros = dds::node(&context, "/", "issue12_test").expect("node");
     let _spinner = dds::spawn_spinner(&mut ros).expect("spinner");
-    let cams = [Camera::new(&mut ros, "/cam0"), Camera::new(&mut ros, "/cam1")];
+    let cams = [Camera::new(&mut ros, "/cam0"), Camera::new(&mut ros, "/cam1"), Camera::new(&mut ros, "/cam3")];
     let cam2_map = dds::publisher::<msgs::PointCloud2>(&mut ros, "/cam2/map/points", &dds::reliable(1)).expect("pub");
     let root_pose =
         dds::subscription::<msgs::PoseStamped>(&mut ros, "/angle_i2p/pose", &dds::reliable(10)).expect("sub");
     let diag = dds::subscription::<msgs::DiagnosticArray>(&mut ros, "/diagnostics", &dds::reliable(50)).expect("sub");
     wait_for("the namespaced nodes' readers match", &log_refs, || cams.iter().all(|c| c.matched(&ros)));
     std::thread::sleep(Duration::from_millis(300));
-    for c in &cams {
+    for c in &cams[..2] {
         c.map.publish(convert::point_cloud(frame.stamp, &map)).expect("map");
     }
     cam2_map.publish(convert::point_cloud(frame.stamp, &map)).expect("map");
 
     // Each camera gets its own frame (its own stamp) and only its node answers.
-    let stamps = [frame.stamp + 1_000_000_000, frame.stamp + 2_000_000_000];
-    let mut got: [Option<msgs::PoseStamped>; 2] = [None, None];
+    let stamps = [frame.stamp + 1_000_000_000, frame.stamp + 2_000_000_000, frame.stamp + 3_000_000_000];
+    let mut got: [Option<msgs::PoseStamped>; 3] = [None, None, None];
     let mut next_send = Instant::now();
     wait_for("a pose from each namespaced node", &log_refs, || {
         // Best effort: resend until the node has the map and answers.
@@ -198,7 +218,7 @@ fn inner_namespaces_qos_and_ros_params() {
         latched_log.contains("/cam2/map/points offers durability volatile"),
         "no QoS warning in the log:\n{latched_log}"
     );
-    for log in &logs[..2] {
+    for log in [&logs[0], &logs[1], &logs[3]] {
         assert!(!read(log).contains("incompatible"), "{}", read(log));
     }
     mark_done();

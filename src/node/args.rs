@@ -54,6 +54,11 @@ pub struct NodeParams {
     pub tf_static_topic: String,
     /// Durability of the map subscription (see [`MapQos`]).
     pub map_qos: MapQos,
+    /// A PLY or PCD file read as the map at start (ASCII or binary); empty: the map comes only
+    /// from `topics.map`. A map on the topic later replaces it.
+    pub map_path: String,
+    /// The frame of the points in `map_path`.
+    pub map_frame_id: String,
     /// ROS's `use_sim_time`: the node's own stamps (diagnostics) follow `/clock` when true.
     /// Its outputs always carry the input messages' stamps.
     pub use_sim_time: bool,
@@ -94,6 +99,8 @@ impl Default for NodeParams {
             tf_topic: "/tf".into(),
             tf_static_topic: "/tf_static".into(),
             map_qos: MapQos::Auto,
+            map_path: String::new(),
+            map_frame_id: "map".into(),
             use_sim_time: false,
         }
     }
@@ -398,6 +405,8 @@ const NODE_KEYS: &[&str] = &[
     "tf_topic",
     "tf_static_topic",
     "map_qos",
+    "map_path",
+    "map_frame_id",
     "use_sim_time",
 ];
 

@@ -20,6 +20,7 @@ pub mod diagnostics;
 pub mod health;
 pub mod image;
 pub mod install;
+pub mod map_file;
 pub mod qos_watch;
 pub mod queue;
 mod run;

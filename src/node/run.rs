@@ -2,7 +2,7 @@
 //! and the diagnostics timer.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -17,6 +17,7 @@ use super::dds;
 use super::diagnostics::Stats;
 use super::health::Health;
 use super::image as img;
+use super::map_file;
 use super::qos_watch::{InputRequirement, OfferedQos, QosWatch};
 use super::queue::DropOldestQueue;
 use super::tf::{self, TfBuffer};
@@ -725,6 +726,11 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         queue: queue.clone(),
         stats: stats.clone(),
     };
+    if !np.map_path.is_empty() {
+        let loaded = map_file::load(Path::new(&np.map_path), &np.map_frame_id)?;
+        log(format!("map file {}: {} non-finite points left out", np.map_path, loaded.non_finite));
+        ingest.on_input(Input::Map(Ok(loaded.map)));
+    }
     let diag_period = Duration::from_millis(np.diagnostics_period_ms.max(50));
     let fq_name = names.fully_qualified();
     log(format!(
