@@ -223,3 +223,93 @@ fn inner_namespaces_qos_and_ros_params() {
     }
     mark_done();
 }
+
+#[test]
+fn live_python_matcher_example() {
+    run_in_netns("inner_python_matcher_example");
+}
+
+/// examples/matcher_cyclonedds.py (Cyclone DDS, another DDS stack) as the matcher of a node in
+/// `/cam5`: it hears the camera info, publishes that frame's correspondences with the image's
+/// stamp and frame, and the node localizes the frame.
+#[test]
+#[ignore = "runs inside a network namespace, via live_python_matcher_example"]
+fn inner_python_matcher_example() {
+    enter_netns("live_python_matcher_example", DOMAIN);
+    let Some(py) = common::python() else {
+        common::skip_or_fail("no Python with cyclonedds (make py-venv)");
+        return;
+    };
+    let (frame, map, want) = ransac_frame();
+    let stamp = frame.stamp + 5_000_000_000;
+    let tmp = tempfile::tempdir().expect("tmp");
+    let rows: Vec<[f64; 6]> = frame
+        .correspondences
+        .iter()
+        .map(|c| [c.pixel.x, c.pixel.y, c.point.x, c.point.y, c.point.z, f64::from(c.score)])
+        .collect();
+    let replay = tmp.path().join("replay.json");
+    std::fs::write(&replay, serde_json::json!({ stamp.to_string(): rows }).to_string()).expect("replay");
+    let log = tmp.path().join("node.log");
+    let _node = start_node(&log, &["-r", "__ns:=/cam5", "-p", "method:=ransac", "-p", "pnp.min_inliers:=6"]);
+    let mut matcher = Guard(
+        Command::new(py)
+            .arg(manifest().join("examples/matcher_cyclonedds.py"))
+            .args(["--namespace", "/cam5", "--domain", DOMAIN, "--count", "1", "--timeout", "60"])
+            .arg("--replay")
+            .arg(&replay)
+            .args(["--map-frame", &frame.map_frame_id])
+            .env(
+                "CYCLONEDDS_URI",
+                "<General><Interfaces><NetworkInterface name=\"lo\" multicast=\"true\"/></Interfaces></General>",
+            )
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("spawn the example matcher"),
+    );
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(matcher.0.stdout.take().expect("stdout")));
+    match lines.next() {
+        Some(Ok(l)) if l == "READY" => {}
+        other => {
+            if let Ok(Some(s)) = matcher.0.try_wait() {
+                if s.code() == Some(3) {
+                    common::skip_or_fail("the cyclonedds Python package is missing (scripts/requirements-eval.txt)");
+                    return;
+                }
+            }
+            panic!("the example matcher never matched the node: {other:?}\n{}", read(&log));
+        }
+    }
+
+    let context = dds::context().expect("context");
+    let mut ros = dds::node(&context, "/", "example_test").expect("node");
+    let _spinner = dds::spawn_spinner(&mut ros).expect("spinner");
+    let cam = Camera::new(&mut ros, "/cam5");
+    wait_for("the node's readers match", &[&log], || {
+        cam.info.get_subscription_count(&ros) > 0 && cam.map.get_subscription_count(&ros) > 0
+    });
+    std::thread::sleep(Duration::from_millis(300));
+    cam.map.publish(convert::point_cloud(frame.stamp, &map)).expect("map");
+    let mut next_send = Instant::now();
+    let mut pose = None;
+    wait_for("a pose for the example matcher's frame", &[&log], || {
+        if Instant::now() >= next_send {
+            let info = convert::camera_info(stamp, &frame.camera_frame_id, &frame.intrinsics);
+            cam.info.publish(info).expect("info");
+            next_send = Instant::now() + Duration::from_secs(1);
+        }
+        while let Ok(Some((p, _))) = cam.pose.take() {
+            pose = Some(p);
+        }
+        pose.is_some()
+    });
+    let p = pose.expect("pose");
+    assert_eq!(convert::stamp(&p.header), stamp);
+    let t = want.translation.vector;
+    let d = ((p.pose.position.x - t.x).powi(2) + (p.pose.position.y - t.y).powi(2) + (p.pose.position.z - t.z).powi(2))
+        .sqrt();
+    assert!(d < 1e-4, "position off by {d}");
+    let status = netns::wait_bounded(&mut matcher.0, Duration::from_secs(30)).expect("the matcher exits");
+    assert!(status.success(), "the example matcher failed: {status}");
+    mark_done();
+}
