@@ -198,26 +198,60 @@ fn inner_namespaces_qos_and_ros_params() {
     assert!(matches!(root_pose.take(), Ok(None)), "a pose on the root /angle_i2p/pose");
 
     // The latched-only node names the volatile map publisher it cannot hear.
+    // diagnostic_updater's names: the node that hears nothing is STALE, the camera info of
+    // /cam0 (heard) gets a topic status that is not.
     let mut incompatible = 0;
-    let mut statuses: Vec<msgs::DiagnosticStatus> = Vec::new();
+    let mut cam0_info_heard = false;
+    let mut cam2_level = None;
     wait_for("the latched-only node counts the incompatible map publisher", &log_refs, || {
         while let Ok(Some((d, _))) = diag.take() {
             incompatible = incompatible.max(diag_of(&d, "/cam2/angle_i2p", "error.incompatible_qos"));
-            statuses.extend(d.status);
+            for s in &d.status {
+                if s.hardware_id == "/cam2/angle_i2p" && s.name == "angle_i2p: localization" {
+                    cam2_level = Some(s.level);
+                }
+                cam0_info_heard |= s.hardware_id == "/cam0/angle_i2p"
+                    && s.name == "angle_i2p: /cam0/camera/camera_info topic status"
+                    && s.level != msgs::DiagnosticStatus::STALE;
+            }
         }
-        incompatible >= 1
+        incompatible >= 1 && cam0_info_heard
     });
-    // diagnostic_updater's names; the node that hears nothing is STALE.
-    let find = |hw: &str, name: &str| statuses.iter().rev().find(|s| s.hardware_id == hw && s.name == name).cloned();
-    let cam2 = find("/cam2/angle_i2p", "angle_i2p: localization").expect("cam2 status");
-    assert_eq!(cam2.level, msgs::DiagnosticStatus::STALE, "{cam2:?}");
-    let info = find("/cam0/angle_i2p", "angle_i2p: /cam0/camera/camera_info topic status").expect("topic status");
-    assert_ne!(info.level, msgs::DiagnosticStatus::STALE, "{info:?}");
+    assert_eq!(cam2_level, Some(msgs::DiagnosticStatus::STALE));
     let latched_log = read(&logs[2]);
     assert!(
         latched_log.contains("/cam2/map/points offers durability volatile"),
         "no QoS warning in the log:\n{latched_log}"
     );
+    // `~/load_map` answers: it reloads the PLY, and says why when the file has gone bad.
+    use angle_i2p::node::services::{trigger_type, TriggerRequest, TriggerResponse, SERVICE_MAPPING};
+    let qos = dds::reliable(10);
+    let client = ros
+        .create_client::<TriggerRequest, TriggerResponse>(
+            SERVICE_MAPPING,
+            &dds::topic_name("/cam3/angle_i2p/load_map").expect("name"),
+            &trigger_type(),
+            qos.clone(),
+            qos,
+        )
+        .expect("client");
+    let call = |what: &str| -> TriggerResponse {
+        let answer = futures::executor::block_on(async {
+            let wait = client.wait_for_service(&ros);
+            with_timeout(wait, Duration::from_secs(20)).await.expect("the service appears");
+            with_timeout(client.async_call_service(TriggerRequest::default()), Duration::from_secs(20)).await
+        });
+        match answer {
+            Some(Ok(r)) => r,
+            other => panic!("{what}: no answer: {other:?}\n{}", read(&logs[3])),
+        }
+    };
+    let ok = call("reload");
+    assert!(ok.success, "{ok:?}");
+    assert!(ok.message.starts_with(&format!("{} points", map.points.len())), "{ok:?}");
+    std::fs::write(&ply, b"ply\nformat ascii 1.0\nelement vertex 1\n").expect("break the file");
+    let bad = call("reload a broken file");
+    assert!(!bad.success && bad.message.contains("map.ply"), "{bad:?}");
     for log in [&logs[0], &logs[1], &logs[3]] {
         assert!(!read(log).contains("incompatible"), "{}", read(log));
     }
@@ -312,4 +346,18 @@ fn inner_python_matcher_example() {
     let status = netns::wait_bounded(&mut matcher.0, Duration::from_secs(30)).expect("the matcher exits");
     assert!(status.success(), "the example matcher failed: {status}");
     mark_done();
+}
+
+/// `fut`, or `None` after `limit` (a plain timer thread: the test has no async runtime).
+async fn with_timeout<F: std::future::Future>(fut: F, limit: Duration) -> Option<F::Output> {
+    let (tx, rx) = futures::channel::oneshot::channel::<()>();
+    std::thread::spawn(move || {
+        std::thread::sleep(limit);
+        let _ = tx.send(());
+    });
+    futures::pin_mut!(fut);
+    match futures::future::select(fut, rx).await {
+        futures::future::Either::Left((out, _)) => Some(out),
+        futures::future::Either::Right(_) => None,
+    }
 }

@@ -24,6 +24,7 @@ pub mod map_file;
 pub mod qos_watch;
 pub mod queue;
 mod run;
+pub mod services;
 pub mod tf;
 mod topics;
 

@@ -20,6 +20,7 @@ use super::image as img;
 use super::map_file;
 use super::qos_watch::{InputRequirement, OfferedQos, QosWatch};
 use super::queue::DropOldestQueue;
+use super::services;
 use super::tf::{self, TfBuffer};
 pub use super::topics::Topics;
 use crate::bag::BagWriter;
@@ -706,6 +707,15 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             )?);
         }
     }
+    let load_map_tx = tx.clone();
+    readers.push(services::spawn_load_map(
+        &mut node,
+        &names.resolve("~/load_map"),
+        np.map_path.clone(),
+        np.map_frame_id.clone(),
+        move |map| load_map_tx.blocking_send(Input::Map(Ok(map))).is_ok(),
+        |m| log(m),
+    )?);
     drop(tx);
 
     let localizer = Localizer::new(params.clone());
