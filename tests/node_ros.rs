@@ -224,34 +224,57 @@ fn inner_namespaces_qos_and_ros_params() {
         "no QoS warning in the log:\n{latched_log}"
     );
     // `~/load_map` answers: it reloads the PLY, and says why when the file has gone bad.
-    use angle_i2p::node::services::{trigger_type, TriggerRequest, TriggerResponse, SERVICE_MAPPING};
-    let qos = dds::reliable(10);
-    let client = ros
-        .create_client::<TriggerRequest, TriggerResponse>(
-            SERVICE_MAPPING,
-            &dds::topic_name("/cam3/angle_i2p/load_map").expect("name"),
-            &trigger_type(),
-            qos.clone(),
-            qos,
-        )
-        .expect("client");
-    let call = |what: &str| -> TriggerResponse {
-        let answer = futures::executor::block_on(async {
-            let wait = client.wait_for_service(&ros);
-            with_timeout(wait, Duration::from_secs(20)).await.expect("the service appears");
-            with_timeout(client.async_call_service(TriggerRequest::default()), Duration::from_secs(20)).await
-        });
-        match answer {
-            Some(Ok(r)) => r,
-            other => panic!("{what}: no answer: {other:?}\n{}", read(&logs[3])),
-        }
-    };
-    let ok = call("reload");
+    let ok = trigger(&mut ros, "/cam3/angle_i2p/load_map", "reload", &logs[3]);
     assert!(ok.success, "{ok:?}");
     assert!(ok.message.starts_with(&format!("{} points", map.points.len())), "{ok:?}");
     std::fs::write(&ply, b"ply\nformat ascii 1.0\nelement vertex 1\n").expect("break the file");
-    let bad = call("reload a broken file");
+    let bad = trigger(&mut ros, "/cam3/angle_i2p/load_map", "reload a broken file", &logs[3]);
     assert!(!bad.success && bad.message.contains("map.ply"), "{bad:?}");
+    // An /initialpose far from the camera withholds /cam0's next pose; ~/relocalize drops it.
+    let initial = dds::publisher::<msgs::PoseWithCovarianceStamped>(&mut ros, "/cam0/initialpose", &dds::reliable(10))
+        .expect("pub");
+    wait_for("the initialpose reader matches", &log_refs, || initial.get_subscription_count(&ros) > 0);
+    std::thread::sleep(Duration::from_millis(300));
+    let far = nalgebra::Isometry3::translation(want.translation.x + 10.0, want.translation.y, want.translation.z);
+    let mut covariance = [0.0; 36];
+    [0, 7, 14, 21, 28, 35].iter().for_each(|&i| covariance[i] = 0.01);
+    let prior = msgs::PoseWithCovarianceStamped {
+        header: msgs::Header::new(frame.stamp, &frame.map_frame_id),
+        pose: msgs::PoseWithCovariance { pose: convert::pose_from_isometry(&far), covariance },
+    };
+    initial.publish(prior).expect("initialpose");
+    std::thread::sleep(Duration::from_millis(500));
+    let gated_stamp = frame.stamp + 7_000_000_000;
+    let mut gated = 0;
+    let mut next_send = Instant::now();
+    wait_for("the far initial pose withholds the pose", &log_refs, || {
+        if Instant::now() >= next_send {
+            cams[0].publish_frame(&frame, gated_stamp);
+            next_send = Instant::now() + Duration::from_secs(1);
+        }
+        while let Ok(Some((d, _))) = diag.take() {
+            gated = gated.max(diag_of(&d, "/cam0/angle_i2p", "error.outside_initialpose_gate"));
+        }
+        gated >= 1
+    });
+    while let Ok(Some((p, _))) = cams[0].pose.take() {
+        assert_ne!(convert::stamp(&p.header), gated_stamp, "a pose outside the initial pose's gate was published");
+    }
+    let dropped = trigger(&mut ros, "/cam0/angle_i2p/relocalize", "relocalize", &logs[0]);
+    assert!(dropped.success && dropped.message.contains("dropped"), "{dropped:?}");
+    let free_stamp = frame.stamp + 9_000_000_000;
+    let mut freed = false;
+    let mut next_send = Instant::now();
+    wait_for("a pose again after ~/relocalize", &log_refs, || {
+        if Instant::now() >= next_send {
+            cams[0].publish_frame(&frame, free_stamp);
+            next_send = Instant::now() + Duration::from_secs(1);
+        }
+        while let Ok(Some((p, _))) = cams[0].pose.take() {
+            freed |= convert::stamp(&p.header) == free_stamp;
+        }
+        freed
+    });
     for log in [&logs[0], &logs[1], &logs[3]] {
         assert!(!read(log).contains("incompatible"), "{}", read(log));
     }
@@ -359,5 +382,34 @@ async fn with_timeout<F: std::future::Future>(fut: F, limit: Duration) -> Option
     match futures::future::select(fut, rx).await {
         futures::future::Either::Left((out, _)) => Some(out),
         futures::future::Either::Right(_) => None,
+    }
+}
+
+/// Calls the std_srvs/Trigger `service` and returns its answer (20 s at most each for the
+/// service to appear and to answer).
+fn trigger(
+    ros: &mut ros2_client::Node,
+    service: &str,
+    what: &str,
+    log: &Path,
+) -> angle_i2p::node::services::TriggerResponse {
+    use angle_i2p::node::services::{trigger_type, TriggerRequest, TriggerResponse, SERVICE_MAPPING};
+    let qos = dds::reliable(10);
+    let client = ros
+        .create_client::<TriggerRequest, TriggerResponse>(
+            SERVICE_MAPPING,
+            &dds::topic_name(service).expect("name"),
+            &trigger_type(),
+            qos.clone(),
+            qos,
+        )
+        .expect("client");
+    let answer = futures::executor::block_on(async {
+        with_timeout(client.wait_for_service(ros), Duration::from_secs(20)).await.expect("the service appears");
+        with_timeout(client.async_call_service(TriggerRequest::default()), Duration::from_secs(20)).await
+    });
+    match answer {
+        Some(Ok(r)) => r,
+        other => panic!("{what}: no answer from {service}: {other:?}\n{}", read(log)),
     }
 }

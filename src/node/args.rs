@@ -59,6 +59,15 @@ pub struct NodeParams {
     pub map_path: String,
     /// The frame of the points in `map_path`.
     pub map_frame_id: String,
+    /// geometry_msgs/PoseWithCovarianceStamped of the camera in the map: a gate on the poses
+    /// (see [`super::initial_pose`]), `~/relocalize` drops it.
+    pub initialpose_topic: String,
+    /// The gate's half-width in standard deviations of the initial pose's covariance …
+    pub initialpose_gate_sigmas: f64,
+    /// … but at least this far (metres) …
+    pub initialpose_min_radius_m: f64,
+    /// … and this much rotation (degrees).
+    pub initialpose_min_angle_deg: f64,
     /// ROS's `use_sim_time`: the node's own stamps (diagnostics) follow `/clock` when true.
     /// Its outputs always carry the input messages' stamps.
     pub use_sim_time: bool,
@@ -101,6 +110,10 @@ impl Default for NodeParams {
             map_qos: MapQos::Auto,
             map_path: String::new(),
             map_frame_id: "map".into(),
+            initialpose_topic: "initialpose".into(),
+            initialpose_gate_sigmas: 3.0,
+            initialpose_min_radius_m: 0.5,
+            initialpose_min_angle_deg: 15.0,
             use_sim_time: false,
         }
     }
@@ -407,6 +420,10 @@ const NODE_KEYS: &[&str] = &[
     "map_qos",
     "map_path",
     "map_frame_id",
+    "initialpose_topic",
+    "initialpose_gate_sigmas",
+    "initialpose_min_radius_m",
+    "initialpose_min_angle_deg",
     "use_sim_time",
 ];
 

@@ -19,6 +19,7 @@ pub mod dds;
 pub mod diagnostics;
 pub mod health;
 pub mod image;
+pub mod initial_pose;
 pub mod install;
 pub mod map_file;
 pub mod qos_watch;

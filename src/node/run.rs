@@ -17,6 +17,7 @@ use super::dds;
 use super::diagnostics::Stats;
 use super::health::Health;
 use super::image as img;
+use super::initial_pose::{GateWidth, PoseGate};
 use super::map_file;
 use super::qos_watch::{InputRequirement, OfferedQos, QosWatch};
 use super::queue::DropOldestQueue;
@@ -477,7 +478,12 @@ fn dummy_frame() -> Frame {
     }
 }
 
-async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outputs: Outputs) {
+async fn worker(
+    queue: Arc<DropOldestQueue<Job>>,
+    mut localizer: Localizer,
+    outputs: Outputs,
+    gate: Arc<Mutex<Option<PoseGate>>>,
+) {
     let mut map: Option<Arc<MapCloud>> = None;
     while let Some(job) = queue.pop().await {
         if let Some(new) = job.new_map {
@@ -487,7 +493,7 @@ async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outp
         let stamp = job.frame.stamp;
         let (back, frame, loc) = localize(localizer, job.frame).await;
         localizer = back;
-        let Some(loc) = loc else {
+        let Some(mut loc) = loc else {
             warn(format!("frame {stamp}: the localizer panicked; continuing with a fresh one"));
             let mut s = lock(&outputs.stats);
             s.frames_failed += 1;
@@ -499,6 +505,7 @@ async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outp
             }
             continue;
         };
+        apply_gate(&gate, &mut loc, &outputs.stats);
         outputs.publish(&loc, &frame).await;
         let latency = job.arrived.elapsed().as_secs_f64() * 1e3;
         let mut s = lock(&outputs.stats);
@@ -543,6 +550,30 @@ fn node_stamp(use_sim_time: bool, stats: &Stats) -> Stamp {
         stats.last_stamp.unwrap_or(0)
     } else {
         now_ns()
+    }
+}
+
+fn gate_width(np: &NodeParams) -> GateWidth {
+    GateWidth {
+        sigmas: np.initialpose_gate_sigmas,
+        min_radius_m: np.initialpose_min_radius_m,
+        min_angle_deg: np.initialpose_min_angle_deg,
+    }
+}
+
+/// With an `/initialpose` gate set: a pose outside it is withdrawn (counted), one inside moves it.
+fn apply_gate(gate: &Mutex<Option<PoseGate>>, loc: &mut Localization, stats: &Mutex<Stats>) {
+    let mut guard = gate.lock().unwrap_or_else(|p| p.into_inner());
+    let (Some(g), Some(pose)) = (guard.as_mut(), loc.pose) else { return };
+    match g.check(&pose) {
+        Ok(()) => g.follow(&pose),
+        Err(miss) => {
+            let detail = format!("frame {}: outside the initial pose gate: {miss}", loc.stamp);
+            warn(&detail);
+            lock(stats).error("outside_initialpose_gate", detail);
+            loc.pose = None;
+            loc.covariance = None;
+        }
     }
 }
 
@@ -627,6 +658,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         expected.push(PartKind::Image);
     }
     let (tx, mut rx) = mpsc::channel::<Input>(256);
+    let gate: Arc<Mutex<Option<PoseGate>>> = Arc::new(Mutex::new(None));
     let mut readers = Vec::new();
     let sensor = dds::sensor_data(10);
     readers.push(spawn_reader(
@@ -707,14 +739,36 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             )?);
         }
     }
-    let load_map_tx = tx.clone();
-    readers.push(services::spawn_load_map(
-        &mut node,
-        &names.resolve("~/load_map"),
-        np.map_path.clone(),
-        np.map_frame_id.clone(),
-        move |map| load_map_tx.blocking_send(Input::Map(Ok(map))).is_ok(),
-        |m| log(m),
+    let (load_map_tx, map_path, map_frame_id) = (tx.clone(), np.map_path.clone(), np.map_frame_id.clone());
+    let load_map = move || {
+        let (response, map) = services::load_map_answer(&map_path, &map_frame_id);
+        if let Some(map) = map {
+            // The node is shutting down when the ingest side is gone.
+            let _ = load_map_tx.blocking_send(Input::Map(Ok(map)));
+        }
+        response
+    };
+    readers.push(services::spawn_trigger(&mut node, &names.resolve("~/load_map"), load_map, |m| log(m))?);
+    let gate_for_service = gate.clone();
+    let relocalize = move || {
+        let had = gate_for_service.lock().unwrap_or_else(|p| p.into_inner()).take().is_some();
+        let message = if had { "initial pose dropped: localizing globally" } else { "no initial pose was set" };
+        services::TriggerResponse { success: true, message: message.into() }
+    };
+    readers.push(services::spawn_trigger(&mut node, &names.resolve("~/relocalize"), relocalize, |m| log(m))?);
+    let (gate_for_reader, width) = (gate.clone(), gate_width(&np));
+    readers.push(spawn_reader(
+        dds::subscription::<msgs::PoseWithCovarianceStamped>(&mut node, &topics.initial_pose, &dds::reliable(10))?,
+        topics.initial_pose.clone(),
+        tx.clone(),
+        move |m| match PoseGate::from_msg(&m, None, width) {
+            Ok(g) => {
+                log(format!("initial pose: gate {:.2} m / {:.1}°", g.radius_m, g.max_angle_rad.to_degrees()));
+                *gate_for_reader.lock().unwrap_or_else(|p| p.into_inner()) = Some(g);
+                None
+            }
+            Err(e) => Some(Input::Invalid { reason: "invalid_initialpose", detail: e.to_string() }),
+        },
     )?);
     drop(tx);
 
@@ -723,7 +777,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         anyhow::bail!("method {}: {e}", params.method.name());
     }
     let queue = Arc::new(DropOldestQueue::new(np.queue_depth));
-    let worker_task = tokio::spawn(worker(queue.clone(), localizer, outputs));
+    let worker_task = tokio::spawn(worker(queue.clone(), localizer, outputs, gate.clone()));
 
     let mut ingest = Ingest {
         assembler: FrameAssembler::new(&expected),

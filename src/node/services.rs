@@ -1,5 +1,6 @@
-//! The node's services: `~/load_map` (std_srvs/Trigger) reads `node.map_path` again and hands
-//! the map to the node, answering how many points it loaded or why it could not.
+//! The node's services (std_srvs/Trigger): `~/load_map` reads `node.map_path` again and hands
+//! the map to the node, answering how many points it loaded or why it could not;
+//! `~/relocalize` drops the `/initialpose` gate ([`super::initial_pose`]).
 //!
 //! Services use ros2-client's `Enhanced` request/reply mapping (the one of rmw_fastrtps, ROS 2's
 //! default middleware; rmw_cyclonedds uses another mapping that ros2-client supports only on one
@@ -57,14 +58,12 @@ pub fn load_map_answer(map_path: &str, frame_id: &str) -> (TriggerResponse, Opti
     }
 }
 
-/// Serves `service` (e.g. `/cam0/angle_i2p/load_map`) on its own thread: each request reloads
-/// `map_path` and passes the map to `deliver` (false: the node is shutting down).
-pub fn spawn_load_map(
+/// Serves the std_srvs/Trigger `service` (e.g. `/cam0/angle_i2p/load_map`) on its own thread,
+/// answering each request with `handle`'s response.
+pub fn spawn_trigger(
     node: &mut Node,
     service: &str,
-    map_path: String,
-    frame_id: String,
-    deliver: impl Fn(MapCloud) -> bool + Send + 'static,
+    mut handle: impl FnMut() -> TriggerResponse + Send + 'static,
     log: fn(String),
 ) -> Result<std::thread::JoinHandle<()>> {
     let qos = dds::reliable(10);
@@ -79,27 +78,21 @@ pub fn spawn_load_map(
         .map_err(|e| anyhow!("cannot create service {service}: {e:?}"))?;
     let name = service.to_string();
     std::thread::Builder::new()
-        .name("service load_map".into())
+        .name(format!("service {name}"))
         .spawn(move || {
-            let service = name;
             futures::executor::block_on(async move {
                 loop {
                     let (id, _request) = match server.async_receive_request().await {
                         Ok(r) => r,
                         Err(e) => {
-                            log(format!("{service}: unreadable request: {e:?}"));
+                            log(format!("{name}: unreadable request: {e:?}"));
                             continue;
                         }
                     };
-                    let (response, map) = load_map_answer(&map_path, &frame_id);
-                    log(format!("{service}: {}", response.message));
-                    if let Some(map) = map {
-                        if !deliver(map) {
-                            break;
-                        }
-                    }
+                    let response = handle();
+                    log(format!("{name}: {}", response.message));
                     if let Err(e) = server.async_send_response(id, response).await {
-                        log(format!("{service}: response not sent: {e:?}"));
+                        log(format!("{name}: response not sent: {e:?}"));
                     }
                 }
             })

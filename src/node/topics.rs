@@ -27,6 +27,8 @@ pub struct Topics {
     pub tf: String,
     pub tf_static: String,
     pub debug_image: String,
+    /// `initialpose` (relative, as nav2's amcl has it).
+    pub initial_pose: String,
 }
 
 /// `value`, made relative when it is the (absolute) default `default`.
@@ -56,6 +58,7 @@ impl Topics {
             tf: names.resolve(&n.tf_topic),
             tf_static: names.resolve(&n.tf_static_topic),
             debug_image: names.resolve(&n.debug_image_topic),
+            initial_pose: names.resolve(&n.initialpose_topic),
         }
     }
 }
