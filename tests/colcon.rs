@@ -94,6 +94,9 @@ fn colcon_builds_and_installs_the_rust_package() {
     let mut launch_files = 0;
     for entry in std::fs::read_dir(share.join("launch_configs")).expect("launch_configs installed") {
         let path = entry.expect("entry").path();
+        if !path.to_string_lossy().ends_with(".launch.yaml") {
+            continue;
+        }
         let text = std::fs::read_to_string(&path).expect("launch file");
         let doc: serde_yaml::Value = serde_yaml::from_str(&text).expect("launch YAML");
         let (mut shares, mut nodes) = (Vec::new(), Vec::new());
