@@ -4,7 +4,7 @@ VENV := .venv
 CARGO ?= cargo
 DEMO_BAG := bags/synth-hard
 
-.PHONY: all build demo test fuzz py-venv bench bags ort training-env ablations clean
+.PHONY: all build demo test fuzz py-venv colcon-venv bench bags ort training-env ablations clean
 
 all: build
 
@@ -16,6 +16,13 @@ py-venv: $(VENV)/.stamp
 $(VENV)/.stamp: scripts/requirements-eval.txt
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install --quiet --disable-pip-version-check -r scripts/requirements-eval.txt
+	touch $@
+
+# colcon, colcon-ros-cargo and cargo-ament-build (PyPI), for the colcon build test.
+colcon-venv: .venv-colcon/.stamp
+.venv-colcon/.stamp: scripts/requirements-colcon.txt
+	$(PYTHON) -m venv .venv-colcon
+	.venv-colcon/bin/pip install --quiet --disable-pip-version-check -r scripts/requirements-colcon.txt
 	touch $@
 
 # Main job on shipped data: replay a synthetic bag with each method, then score them.
@@ -39,7 +46,7 @@ side-by-side: build ort py-venv
 		--binary $(or $(CARGO_TARGET_DIR),target)/release/angle-i2p $(SIDE_BY_SIDE_ARGS)
 
 # All tests (unit, integration, Python-reader interop, evaluator agreement when ../shared is present).
-test: py-venv ort
+test: py-venv ort colcon-venv
 	ANGLE_I2P_PYTHON=$(abspath $(VENV))/bin/python $(CARGO) test --release --all-targets
 
 # Long fuzzing (minutes): the proptest targets of tests/fuzz.rs with many more cases than the

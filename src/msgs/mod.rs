@@ -193,7 +193,7 @@ mod tests {
                 .collect()
         };
         let own = |schema: &str| schema.split("=====").next().unwrap_or("").to_string();
-        assert_eq!(strip(include_str!("../../msg/msg/Correspondence.msg")), own(Correspondence::SCHEMA));
-        assert_eq!(strip(include_str!("../../msg/msg/Correspondences.msg")), own(Correspondences::SCHEMA));
+        assert_eq!(strip(include_str!("../../angle_i2p_msgs/msg/Correspondence.msg")), own(Correspondence::SCHEMA));
+        assert_eq!(strip(include_str!("../../angle_i2p_msgs/msg/Correspondences.msg")), own(Correspondences::SCHEMA));
     }
 }

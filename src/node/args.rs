@@ -36,6 +36,10 @@ pub struct NodeParams {
     pub expect_depth_prior: bool,
     /// Period of the aggregated `/diagnostics` message.
     pub diagnostics_period_ms: u64,
+    /// The recent window the diagnostics levels and topic rates are computed over.
+    pub diagnostics_window_s: f64,
+    /// Frames (and messages per input) per second below which the diagnostics WARN; 0: never.
+    pub min_rate_hz: f64,
     /// Publish `debug_image_topic` (sensor_msgs/Image rgb8): the camera image with kept
     /// correspondences green and rejected ones red. Subscribes to the compressed image topic
     /// (`topics.image`) and to `image_raw_topic` (sensor_msgs/Image rgb8, bgr8, mono8, rgba8,
@@ -48,6 +52,40 @@ pub struct NodeParams {
     pub tf_topic: String,
     /// Static transforms, read with `odom_frame` set.
     pub tf_static_topic: String,
+    /// Durability of the map subscription (see [`MapQos`]).
+    pub map_qos: MapQos,
+    /// A PLY or PCD file read as the map at start (ASCII or binary); empty: the map comes only
+    /// from `topics.map`. A map on the topic later replaces it.
+    pub map_path: String,
+    /// The frame of the points in `map_path`.
+    pub map_frame_id: String,
+    /// geometry_msgs/PoseWithCovarianceStamped of the camera in the map: a gate on the poses
+    /// (see [`super::initial_pose`]), `~/relocalize` drops it.
+    pub initialpose_topic: String,
+    /// The gate's half-width in standard deviations of the initial pose's covariance …
+    pub initialpose_gate_sigmas: f64,
+    /// … but at least this far (metres) …
+    pub initialpose_min_radius_m: f64,
+    /// … and this much rotation (degrees).
+    pub initialpose_min_angle_deg: f64,
+    /// ROS's `use_sim_time`: the node's own stamps (diagnostics) follow `/clock` when true.
+    /// Its outputs always carry the input messages' stamps.
+    pub use_sim_time: bool,
+}
+
+/// How the map topic is subscribed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MapQos {
+    /// Both a transient-local reader (a latched map published before the node started) and a
+    /// volatile one (a volatile publisher, e.g. `ros2 bag play` of a bag without
+    /// `offered_qos_profiles`); the same map heard twice is taken once.
+    #[default]
+    Auto,
+    /// Reliable, transient local: only latched publishers match.
+    TransientLocal,
+    /// Reliable, volatile: every publisher matches, a map published before the node started is missed.
+    Volatile,
 }
 
 impl Default for NodeParams {
@@ -61,12 +99,22 @@ impl Default for NodeParams {
             require_map: true,
             expect_depth_prior: true,
             diagnostics_period_ms: 1000,
+            diagnostics_window_s: 5.0,
+            min_rate_hz: 1.0,
             debug_image: false,
-            debug_image_topic: "/angle_i2p/debug_image".into(),
-            image_raw_topic: "/camera/image_raw".into(),
+            debug_image_topic: "angle_i2p/debug_image".into(),
+            image_raw_topic: "camera/image_raw".into(),
             diagnostics_topic: "/diagnostics".into(),
             tf_topic: "/tf".into(),
             tf_static_topic: "/tf_static".into(),
+            map_qos: MapQos::Auto,
+            map_path: String::new(),
+            map_frame_id: "map".into(),
+            initialpose_topic: "initialpose".into(),
+            initialpose_gate_sigmas: 3.0,
+            initialpose_min_radius_m: 0.5,
+            initialpose_min_angle_deg: 15.0,
+            use_sim_time: false,
         }
     }
 }
@@ -88,6 +136,35 @@ pub struct RosArgs {
     pub params_files: Vec<PathBuf>,
     pub namespace: Option<String>,
     pub node_name: Option<String>,
+    /// `--log-level LEVEL` (or `--log-level NAME:=LEVEL` for this node's logger).
+    pub log_level: Option<LogLevel>,
+    /// `-e`/`--enclave`: accepted; DDS security is not built in, so it has no effect (logged).
+    pub enclave: Option<String>,
+    /// Accepted logging options that have no effect here (e.g. `--disable-rosout-logs`).
+    pub ignored: Vec<String>,
+}
+
+/// rcutils' severities, lowest first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum LogLevel {
+    Debug,
+    Info,
+    Warn,
+    Error,
+    Fatal,
+}
+
+impl LogLevel {
+    fn parse(value: &str) -> Option<Self> {
+        Some(match value.to_ascii_lowercase().as_str() {
+            "debug" => Self::Debug,
+            "info" => Self::Info,
+            "warn" | "warning" => Self::Warn,
+            "error" => Self::Error,
+            "fatal" => Self::Fatal,
+            _ => return None,
+        })
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -98,8 +175,13 @@ pub enum ArgsError {
     MissingValue { flag: String },
     #[error("bad {what} {value:?}: expected name:=value")]
     BadRule { what: &'static str, value: String },
-    #[error("unknown ROS argument {0:?} (supported: -r/--remap, -p/--param, --params-file, --)")]
+    #[error(
+        "unknown ROS argument {0:?} (supported: -r/--remap, -p/--param, --params-file, --log-level, -e/--enclave, \
+         --log-config-file, --[enable|disable]-{{rosout,stdout,external-lib}}-logs, --)"
+    )]
     Unknown(String),
+    #[error("bad log level {0:?}: expected debug, info, warn, error or fatal (or NAME:=LEVEL)")]
+    BadLogLevel(String),
     #[error("{0}")]
     Params(String),
 }
@@ -150,6 +232,20 @@ impl RosArgs {
                     out.params.push(split_rule("parameter", &rule)?);
                 }
                 "--params-file" => out.params_files.push(PathBuf::from(value(tok)?)),
+                "--log-level" => {
+                    let v = value(tok)?;
+                    // `NAME:=LEVEL` sets one logger; only this node's (or a bare level) counts.
+                    let level = v.rsplit_once(":=").map_or(v.as_str(), |(_, l)| l);
+                    out.log_level = Some(LogLevel::parse(level).ok_or(ArgsError::BadLogLevel(v.clone()))?);
+                }
+                "-e" | "--enclave" => out.enclave = Some(value(tok)?),
+                "--log-config-file" => out.ignored.push(format!("{tok} {}", value(tok)?)),
+                "--enable-rosout-logs"
+                | "--disable-rosout-logs"
+                | "--enable-stdout-logs"
+                | "--disable-stdout-logs"
+                | "--enable-external-lib-logs"
+                | "--disable-external-lib-logs" => out.ignored.push(tok.to_string()),
                 other => return Err(ArgsError::Unknown(other.to_string())),
             }
         }
@@ -213,25 +309,50 @@ pub struct ResolvedParams {
     pub node: NodeParams,
 }
 
-/// The `ros__parameters` of this node in a ROS 2 params file: the section named after the
-/// node (bare or fully qualified) or `/**`; all matching sections merge, specific ones last.
+/// The `ros__parameters` of this node in a ROS 2 params file: every section whose key matches
+/// the node, wildcard ones (`/**`, `/cam0/*`, `/**/angle_i2p`) first, then exact ones (the bare
+/// node name, `/name` or the fully qualified name); later sections override earlier ones.
 fn params_section(doc: &serde_yaml::Value, names: &Names) -> Option<serde_yaml::Value> {
-    let keys = ["/**".to_string(), names.node_name.clone(), format!("/{}", names.node_name), names.fully_qualified()];
+    let fq = names.fully_qualified();
+    let sections = doc.as_mapping()?;
+    let mut matching: Vec<(bool, &serde_yaml::Value)> = Vec::new();
+    for (key, body) in sections {
+        let Some(key) = key.as_str() else { continue };
+        let Some(p) = body.get("ros__parameters") else { continue };
+        let exact = key == names.node_name || key.trim_start_matches('/') == fq.trim_start_matches('/');
+        let wild = key.contains('*') && node_pattern_matches(key, &fq);
+        if exact || wild {
+            matching.push((exact, p));
+        }
+    }
+    matching.sort_by_key(|(exact, _)| *exact);
     let mut merged: Option<serde_yaml::Value> = None;
-    let mut seen = Vec::new();
-    for key in keys {
-        if seen.contains(&key) {
-            continue;
+    for (_, p) in matching {
+        let p = undot(p);
+        match &mut merged {
+            None => merged = Some(p),
+            Some(m) => deep_merge(m, &p),
         }
-        if let Some(p) = doc.get(key.as_str()).and_then(|n| n.get("ros__parameters")) {
-            match &mut merged {
-                None => merged = Some(p.clone()),
-                Some(m) => deep_merge(m, p),
-            }
-        }
-        seen.push(key);
     }
     merged
+}
+
+/// rcl's node-name patterns: `*` matches one name token, `**` any number (also none).
+fn node_pattern_matches(pattern: &str, fully_qualified: &str) -> bool {
+    fn matches(p: &[&str], n: &[&str]) -> bool {
+        match p.split_first() {
+            None => n.is_empty(),
+            Some((&"**", rest)) => (0..=n.len()).any(|skip| matches(rest, &n[skip..])),
+            Some((tok, rest)) => {
+                n.split_first().is_some_and(|(first, n_rest)| (*tok == "*" || tok == first) && matches(rest, n_rest))
+            }
+        }
+    }
+    let split = |s: &str| -> Vec<String> { s.split('/').filter(|t| !t.is_empty()).map(str::to_string).collect() };
+    let (p, n) = (split(pattern), split(fully_qualified));
+    let p: Vec<&str> = p.iter().map(String::as_str).collect();
+    let n: Vec<&str> = n.iter().map(String::as_str).collect();
+    matches(&p, &n)
 }
 
 fn deep_merge(base: &mut serde_yaml::Value, over: &serde_yaml::Value) {
@@ -248,6 +369,26 @@ fn deep_merge(base: &mut serde_yaml::Value, over: &serde_yaml::Value) {
         }
         _ => *base = over.clone(),
     }
+}
+
+/// A params-file mapping with dotted keys (`pnp.threshold_px: 4.0`, as rcl accepts and
+/// launch_ros writes) turned into nested mappings; nested and dotted forms may mix.
+fn undot(value: &serde_yaml::Value) -> serde_yaml::Value {
+    let Some(m) = value.as_mapping() else { return value.clone() };
+    let mut out = serde_yaml::Value::Mapping(Default::default());
+    for (k, v) in m {
+        let v = undot(v);
+        let entry = match k.as_str() {
+            Some(name) if name.contains('.') => dotted(name, v),
+            _ => {
+                let mut one = serde_yaml::Mapping::new();
+                one.insert(k.clone(), v);
+                serde_yaml::Value::Mapping(one)
+            }
+        };
+        deep_merge(&mut out, &entry);
+    }
+    out
 }
 
 /// `a.b.c` + value → `{a: {b: {c: value}}}`.
@@ -268,12 +409,22 @@ const NODE_KEYS: &[&str] = &[
     "require_map",
     "expect_depth_prior",
     "diagnostics_period_ms",
+    "diagnostics_window_s",
+    "min_rate_hz",
     "debug_image",
     "debug_image_topic",
     "image_raw_topic",
     "diagnostics_topic",
     "tf_topic",
     "tf_static_topic",
+    "map_qos",
+    "map_path",
+    "map_frame_id",
+    "initialpose_topic",
+    "initialpose_gate_sigmas",
+    "initialpose_min_radius_m",
+    "initialpose_min_angle_deg",
+    "use_sim_time",
 ];
 
 /// Resolves parameters: defaults < `params_file` < `--ros-args --params-file` (in order) <
@@ -321,6 +472,12 @@ pub fn resolve_params(params_file: Option<&Path>, args: &RosArgs, names: &Names)
     let params: Params = serde_yaml::from_value(base).map_err(|e| ArgsError::Params(format!("parameters: {e}")))?;
     params.validate().map_err(|e| ArgsError::Params(e.to_string()))?;
     let node = params.node.clone();
+    if !(node.diagnostics_window_s.is_finite() && node.diagnostics_window_s > 0.0) {
+        return Err(ArgsError::Params(format!("diagnostics_window_s must be > 0, got {}", node.diagnostics_window_s)));
+    }
+    if !(node.min_rate_hz.is_finite() && node.min_rate_hz >= 0.0) {
+        return Err(ArgsError::Params(format!("min_rate_hz must be >= 0, got {}", node.min_rate_hz)));
+    }
     if node.queue_depth == 0 {
         return Err(ArgsError::Params("queue_depth must be at least 1".into()));
     }
@@ -414,5 +571,69 @@ mod tests {
         let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("params/angle_i2p.yaml");
         let r = resolve_params(Some(&shipped), &RosArgs::default(), &names).unwrap();
         assert_eq!(r.node, NodeParams::default());
+    }
+
+    #[test]
+    fn standard_ros_arguments_are_accepted_or_named() {
+        let a = RosArgs::parse(&[
+            "--ros-args",
+            "--log-level",
+            "warn",
+            "-e",
+            "/cam0",
+            "--disable-rosout-logs",
+            "--log-level",
+            "angle_i2p:=debug",
+        ])
+        .unwrap();
+        assert_eq!(a.log_level, Some(LogLevel::Debug));
+        assert_eq!(a.enclave.as_deref(), Some("/cam0"));
+        assert_eq!(a.ignored, vec!["--disable-rosout-logs".to_string()]);
+        let e = RosArgs::parse(&["--ros-args", "--log-level", "loud"]).unwrap_err();
+        assert!(e.to_string().contains("loud"), "{e}");
+        let e = RosArgs::parse(&["--ros-args", "--enclave"]).unwrap_err();
+        assert!(matches!(e, ArgsError::MissingValue { .. }), "{e}");
+    }
+
+    #[test]
+    fn params_files_take_dotted_keys_and_wildcards() {
+        let tmp = tempfile::tempdir().unwrap();
+        let f = tmp.path().join("p.yaml");
+        std::fs::write(
+            &f,
+            "/cam0/*:\n  ros__parameters:\n    pnp.min_inliers: 9\n    queue_depth: 3\n\
+             /**/angle_i2p:\n  ros__parameters:\n    node.frame_timeout_ms: 900\n\
+             /cam1/**:\n  ros__parameters:\n    queue_depth: 7\n\
+             /cam0/angle_i2p:\n  ros__parameters:\n    pnp:\n      threshold_px: 4.0\n    use_sim_time: true\n    map_qos: volatile\n",
+        )
+        .unwrap();
+        let a = RosArgs::parse(&["--ros-args", "-r", "__ns:=/cam0"]).unwrap();
+        let r = resolve_params(Some(&f), &a, &Names::new("angle_i2p", &a)).unwrap();
+        assert_eq!(r.params.pnp.min_inliers, 9);
+        assert_eq!(r.params.pnp.threshold_px, 4.0);
+        assert_eq!(r.node.queue_depth, 3);
+        assert_eq!(r.node.frame_timeout_ms, 900);
+        assert!(r.node.use_sim_time);
+        assert_eq!(r.node.map_qos, MapQos::Volatile);
+        // In /cam1 only the `/cam1/**` and `/**/angle_i2p` sections apply.
+        let a = RosArgs::parse(&["--ros-args", "-r", "__ns:=/cam1"]).unwrap();
+        let r = resolve_params(Some(&f), &a, &Names::new("angle_i2p", &a)).unwrap();
+        assert_eq!(r.node.queue_depth, 7);
+        assert_eq!(r.params.pnp.min_inliers, Params::default().pnp.min_inliers);
+        assert_eq!(r.node.frame_timeout_ms, 900);
+        // A misspelt dotted key is still an error.
+        std::fs::write(&f, "/**:\n  ros__parameters:\n    pnp.treshold_px: 4.0\n").unwrap();
+        assert!(resolve_params(Some(&f), &RosArgs::default(), &Names::new("angle_i2p", &RosArgs::default())).is_err());
+    }
+
+    #[test]
+    fn node_patterns() {
+        assert!(node_pattern_matches("/**", "/angle_i2p"));
+        assert!(node_pattern_matches("/**", "/a/b/angle_i2p"));
+        assert!(node_pattern_matches("/**/angle_i2p", "/angle_i2p"));
+        assert!(node_pattern_matches("/*/angle_i2p", "/cam0/angle_i2p"));
+        assert!(!node_pattern_matches("/*/angle_i2p", "/angle_i2p"));
+        assert!(!node_pattern_matches("/cam0/**", "/cam1/angle_i2p"));
+        assert!(!node_pattern_matches("/**/other", "/angle_i2p"));
     }
 }

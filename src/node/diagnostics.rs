@@ -3,12 +3,19 @@
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Instant;
 
+use super::health::Health;
 use crate::eval::median;
 use crate::frame::Stamp;
 use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue};
 
-/// Name of the node's aggregated diagnostics status.
-pub const NODE_STATUS_NAME: &str = "angle_i2p: node";
+/// The node's main task: its status is named `<node name>: localization`, as
+/// `diagnostic_updater` names a node's tasks.
+pub const LOCALIZATION_TASK: &str = "localization";
+
+/// The name of the localization status of node `node_name` (without namespace).
+pub fn status_name(node_name: &str) -> String {
+    format!("{node_name}: {LOCALIZATION_TASK}")
+}
 
 /// Latencies kept for the median.
 const LATENCY_WINDOW: usize = 100;
@@ -41,6 +48,8 @@ pub struct Stats {
     fast_path: VecDeque<bool>,
     /// (time, frames_in, frames_localized) at the last report, for rates.
     last_report: (Instant, u64, u64),
+    /// Inputs and outcomes over the recent window: the levels.
+    pub health: Health,
 }
 
 impl Default for Stats {
@@ -64,12 +73,14 @@ impl Default for Stats {
             prior_quality: VecDeque::new(),
             fast_path: VecDeque::new(),
             last_report: (now, 0, 0),
+            health: Health::default(),
         }
     }
 }
 
 impl Stats {
     pub fn drop_frame(&mut self, reason: &str, detail: impl Into<String>) {
+        self.health.outcome(false, Instant::now());
         *self.drops.entry(reason.to_string()).or_default() += 1;
         self.last_failure = Some(detail.into());
     }
@@ -90,6 +101,7 @@ impl Stats {
     /// One frame went through the localizer: `latency_ms` from its first part's arrival to its
     /// outputs being published, `processing_ms` the localizer's own time.
     pub fn frame_done(&mut self, stamp: Stamp, localized: bool, latency_ms: f64, processing_ms: f64) {
+        self.health.outcome(localized, Instant::now());
         if localized {
             self.frames_localized += 1;
         } else {
@@ -119,8 +131,9 @@ impl Stats {
         self.fast_path.push_back(fast_path);
     }
 
-    /// The aggregated status, with rates since the previous call.
-    pub fn report(&mut self, stamp: Stamp, node_name: &str) -> DiagnosticArray {
+    /// The node's statuses: `<node_name>: localization` (cumulative counts, rates since the
+    /// previous call, a level over the recent window) and one per input topic.
+    pub fn report(&mut self, stamp: Stamp, node_name: &str, hardware_id: &str) -> DiagnosticArray {
         let now = Instant::now();
         let (t0, in0, loc0) = self.last_report;
         let dt = now.duration_since(t0).as_secs_f64().max(1e-3);
@@ -158,25 +171,16 @@ impl Stats {
         .collect::<Vec<_>>();
         values.extend(self.drops.iter().map(|(k, v)| KeyValue { key: format!("dropped.{k}"), value: v.to_string() }));
         values.extend(self.errors.iter().map(|(k, v)| KeyValue { key: format!("error.{k}"), value: v.to_string() }));
-        let (level, message) = if self.maps_received == 0 {
-            (DiagnosticStatus::WARN, "no map yet".to_string())
-        } else if self.frames_in == 0 {
-            (DiagnosticStatus::OK, "waiting for frames".to_string())
-        } else if self.frames_localized == 0 {
-            (DiagnosticStatus::WARN, "no frame localized yet".to_string())
-        } else {
-            (DiagnosticStatus::OK, format!("{} of {} frames localized", self.frames_localized, self.frames_in))
-        };
-        DiagnosticArray {
-            header: Header::new(stamp, ""),
-            status: vec![DiagnosticStatus {
-                level,
-                name: NODE_STATUS_NAME.into(),
-                message,
-                hardware_id: node_name.into(),
-                values,
-            }],
-        }
+        let level = self.health.level(now, self.maps_received > 0);
+        let mut status = vec![DiagnosticStatus {
+            level: level.level,
+            name: status_name(node_name),
+            message: level.message,
+            hardware_id: hardware_id.into(),
+            values,
+        }];
+        status.extend(self.health.topic_statuses(now, node_name, hardware_id));
+        DiagnosticArray { header: Header::new(stamp, ""), status }
     }
 }
 
@@ -184,7 +188,7 @@ impl Stats {
 pub fn status_value<'a>(msg: &'a DiagnosticArray, key: &str) -> Option<&'a str> {
     msg.status
         .iter()
-        .filter(|s| s.name == NODE_STATUS_NAME)
+        .filter(|s| s.name.ends_with(&format!(": {LOCALIZATION_TASK}")))
         .flat_map(|s| s.values.iter())
         .find(|kv| kv.key == key)
         .map(|kv| kv.value.as_str())
@@ -204,7 +208,9 @@ mod tests {
         s.frame_done(4, true, 8.0, 6.0);
         s.frame_evidence(Some(0.8), false);
         s.frame_evidence(None, true);
-        let r = s.report(5, "/angle_i2p");
+        let r = s.report(5, "angle_i2p", "/angle_i2p");
+        assert_eq!(r.status[0].name, "angle_i2p: localization");
+        assert_eq!(r.status[0].level, DiagnosticStatus::OK, "{}", r.status[0].message);
         assert_eq!(status_value(&r, "prior_quality_last"), Some("0.800"));
         assert_eq!(status_value(&r, "fast_path_share"), Some("0.50"));
         assert_eq!(status_value(&r, "dropped.queue_full"), Some("2"));

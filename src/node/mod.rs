@@ -17,13 +17,20 @@
 pub mod args;
 pub mod dds;
 pub mod diagnostics;
+pub mod health;
 pub mod image;
+pub mod initial_pose;
+pub mod install;
+pub mod map_file;
+pub mod qos_watch;
 pub mod queue;
 mod run;
+pub mod services;
 pub mod tf;
+mod topics;
 
-pub use args::{resolve_params, ArgsError, Names, NodeParams, ResolvedParams, RosArgs};
-pub use diagnostics::{status_value, Stats, NODE_STATUS_NAME};
+pub use args::{resolve_params, ArgsError, LogLevel, MapQos, Names, NodeParams, ResolvedParams, RosArgs};
+pub use diagnostics::{status_name, status_value, Stats, LOCALIZATION_TASK};
 pub use queue::DropOldestQueue;
 pub use run::run_node;
 
@@ -48,7 +55,21 @@ pub struct NodeConfig {
 pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     let args = RosArgs::parse(&config.ros_args)?;
     let names = Names::new(NODE_NAME, &args);
-    let resolved = resolve_params(config.params_file.as_deref(), &args, &names)?;
+    let mut resolved = resolve_params(config.params_file.as_deref(), &args, &names)?;
+    if let Some(dirs) = std::env::current_exe().ok().as_deref().and_then(install::InstallDirs::of_binary) {
+        for change in dirs.resolve(&mut resolved.params) {
+            eprintln!("[angle_i2p] installed package: {change}");
+        }
+    }
+    if let Some(level) = args.log_level {
+        run::set_log_level(level);
+    }
+    if let Some(enclave) = &args.enclave {
+        eprintln!("[angle_i2p] WARN enclave {enclave:?} accepted but not applied: DDS security is not built in");
+    }
+    for flag in &args.ignored {
+        eprintln!("[angle_i2p] {flag}: accepted, no effect (the node logs to stderr only)");
+    }
     let runtime =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().thread_name("angle_i2p").build()?;
     runtime.block_on(run_node(names, resolved, config.record))

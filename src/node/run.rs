@@ -2,7 +2,7 @@
 //! and the diagnostics timer.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -12,58 +12,46 @@ use futures::StreamExt;
 use ros2_client::{Publisher, Subscription};
 use tokio::sync::mpsc;
 
-use super::args::{Names, NodeParams, ResolvedParams};
+use super::args::{LogLevel, MapQos, Names, NodeParams, ResolvedParams};
 use super::dds;
 use super::diagnostics::Stats;
+use super::health::Health;
 use super::image as img;
+use super::initial_pose::{GateWidth, PoseGate};
+use super::map_file;
+use super::qos_watch::{InputRequirement, OfferedQos, QosWatch};
 use super::queue::DropOldestQueue;
+use super::services;
 use super::tf::{self, TfBuffer};
+pub use super::topics::Topics;
 use crate::bag::BagWriter;
 use crate::frame::{Assembled, Frame, FrameAssembler, FramePart, IncompleteFrame, MapCloud, PartKind, Stamp};
 use crate::msgs::{self, convert, RosMessage};
 use crate::pipeline::{Localization, Localizer, Method};
 
-/// Resolved topic names of the node.
-#[derive(Clone, Debug)]
-pub struct Topics {
-    pub camera_info: String,
-    pub image: String,
-    pub image_raw: String,
-    pub depth_prior: String,
-    pub correspondences: String,
-    pub map: String,
-    pub pose: String,
-    pub pose_with_covariance: String,
-    pub output_correspondences: String,
-    pub diagnostics: String,
-    pub tf: String,
-    pub tf_static: String,
-    pub debug_image: String,
+/// The node's `--log-level` (`LogLevel as u8`; info by default).
+static LOG_LEVEL: AtomicU8 = AtomicU8::new(LogLevel::Info as u8);
+
+/// Sets the level below which the node's messages are not printed.
+pub fn set_log_level(level: LogLevel) {
+    LOG_LEVEL.store(level as u8, Ordering::Relaxed);
 }
 
-impl Topics {
-    pub fn new(params: &ResolvedParams, names: &Names) -> Self {
-        let (t, n) = (&params.params.topics, &params.node);
-        Self {
-            camera_info: names.resolve(&t.camera_info),
-            image: names.resolve(&t.image),
-            image_raw: names.resolve(&n.image_raw_topic),
-            depth_prior: names.resolve(&t.depth_prior),
-            correspondences: names.resolve(&t.correspondences),
-            map: names.resolve(&t.map),
-            pose: names.resolve(&t.pose),
-            pose_with_covariance: names.resolve(&t.pose_with_covariance),
-            output_correspondences: names.resolve(&t.output_correspondences),
-            diagnostics: names.resolve(&n.diagnostics_topic),
-            tf: names.resolve(&n.tf_topic),
-            tf_static: names.resolve(&n.tf_static_topic),
-            debug_image: names.resolve(&n.debug_image_topic),
-        }
+fn log_at(level: LogLevel, msg: impl std::fmt::Display) {
+    if level as u8 >= LOG_LEVEL.load(Ordering::Relaxed) {
+        let tag = if level >= LogLevel::Warn { "WARN " } else { "" };
+        eprintln!("[angle_i2p] {tag}{msg}");
     }
 }
 
+/// Progress (info).
 fn log(msg: impl std::fmt::Display) {
-    eprintln!("[angle_i2p] {msg}");
+    log_at(LogLevel::Info, msg);
+}
+
+/// Something dropped, refused or failed (warn).
+fn warn(msg: impl std::fmt::Display) {
+    log_at(LogLevel::Warn, msg);
 }
 
 fn now_ns() -> i64 {
@@ -107,7 +95,7 @@ impl Recorder {
         let mut guard = self.writer.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(w) = guard.as_mut() {
             if let Err(e) = w.write(topic, now_ns(), msg) {
-                log(format!("recording {topic} failed: {e}"));
+                warn(format!("recording {topic} failed: {e}"));
                 lock(stats).error("record_failed", format!("recording {topic}: {e}"));
             }
         }
@@ -255,14 +243,16 @@ impl Ingest {
     fn on_input(&mut self, input: Input) {
         match input {
             Input::Part(part) => {
+                lock(&self.stats).health.heard(part.kind().name(), Instant::now());
                 let stamp = self.snap(part.stamp());
                 self.open(stamp);
                 let done = self.assembler.push(restamp(part, stamp));
                 self.handle(done);
             }
             Input::PartError { kind, stamp, reason } => {
+                lock(&self.stats).health.heard(kind.name(), Instant::now());
                 let stamp = self.snap(stamp);
-                log(format!("frame {stamp}: bad {}: {reason}", kind.name()));
+                warn(format!("frame {stamp}: bad {}: {reason}", kind.name()));
                 lock(&self.stats)
                     .error(&format!("invalid_{}", kind.name()), format!("frame {stamp}: {}: {reason}", kind.name()));
                 self.open(stamp);
@@ -270,6 +260,10 @@ impl Ingest {
                 self.handle(done);
             }
             Input::Map(Ok(map)) => {
+                if self.map.as_deref().is_some_and(|m| m.frame_id == map.frame_id && m.points == map.points) {
+                    // `map_qos: auto` reads the map twice from a latched publisher.
+                    return;
+                }
                 log(format!("map received: {} points in frame {:?}", map.points.len(), map.frame_id));
                 let mut s = lock(&self.stats);
                 s.maps_received += 1;
@@ -278,15 +272,15 @@ impl Ingest {
                 self.map_changed = true;
             }
             Input::Map(Err(reason)) => {
-                log(format!("bad map (kept the previous one): {reason}"));
+                warn(format!("bad map (kept the previous one): {reason}"));
                 lock(&self.stats).error("invalid_map", format!("map: {reason}"));
             }
             Input::ReadError { topic, reason } => {
-                log(format!("{topic}: undecodable message: {reason}"));
+                warn(format!("{topic}: undecodable message: {reason}"));
                 lock(&self.stats).error("undecodable_message", format!("{topic}: {reason}"));
             }
             Input::Invalid { reason, detail } => {
-                log(&detail);
+                warn(&detail);
                 lock(&self.stats).error(reason, detail);
             }
         }
@@ -331,7 +325,7 @@ impl Ingest {
 
     fn count_incomplete(&self, r: &IncompleteFrame) {
         let detail = crate::app::describe(r);
-        log(&detail);
+        warn(&detail);
         let mut s = lock(&self.stats);
         if r.dropped {
             let required = PartKind::REQUIRED.iter().map(|k| k.name()).find(|n| r.missing.contains(n));
@@ -353,7 +347,7 @@ impl Ingest {
         s.frames_in += 1;
         if self.require_map && self.map.is_none() {
             s.drop_frame("no_map", format!("frame {stamp}: no map received yet"));
-            log(format!("frame {stamp}: dropped, no map received yet"));
+            warn(format!("frame {stamp}: dropped, no map received yet"));
             return;
         }
         if let Some(map) = &self.map {
@@ -372,7 +366,7 @@ impl Ingest {
         stats.queued_max = stats.queued_max.max(self.queue.len());
         if let Some(old) = dropped {
             let msg = format!("frame {}: dropped, queue full (newer frame {stamp} arrived)", old.frame.stamp);
-            log(&msg);
+            warn(&msg);
             stats.drop_frame("queue_full", msg);
         }
     }
@@ -396,7 +390,7 @@ impl Outputs {
     async fn send<M: RosMessage + Clone + std::fmt::Debug>(&self, p: &Publisher<M>, topic: &str, msg: M) {
         self.recorder.write(topic, &msg, &self.stats);
         if let Err(e) = p.async_publish(msg).await {
-            log(format!("publishing on {topic} failed: {e:?}"));
+            warn(format!("publishing on {topic} failed: {e:?}"));
             lock(&self.stats).error("publish_failed", format!("{topic}: {e:?}"));
         }
     }
@@ -415,7 +409,7 @@ impl Outputs {
                 match self.tf_message(loc, pose) {
                     Ok(msg) => self.send(tf, &topics.tf, msg).await,
                     Err(detail) => {
-                        log(&detail);
+                        warn(&detail);
                         lock(&self.stats).error("no_odom_transform", detail);
                     }
                 }
@@ -488,7 +482,12 @@ fn dummy_frame() -> Frame {
     }
 }
 
-async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outputs: Outputs) {
+async fn worker(
+    queue: Arc<DropOldestQueue<Job>>,
+    mut localizer: Localizer,
+    outputs: Outputs,
+    gate: Arc<Mutex<Option<PoseGate>>>,
+) {
     let mut map: Option<Arc<MapCloud>> = None;
     while let Some(job) = queue.pop().await {
         if let Some(new) = job.new_map {
@@ -498,8 +497,8 @@ async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outp
         let stamp = job.frame.stamp;
         let (back, frame, loc) = localize(localizer, job.frame).await;
         localizer = back;
-        let Some(loc) = loc else {
-            log(format!("frame {stamp}: the localizer panicked; continuing with a fresh one"));
+        let Some(mut loc) = loc else {
+            warn(format!("frame {stamp}: the localizer panicked; continuing with a fresh one"));
             let mut s = lock(&outputs.stats);
             s.frames_failed += 1;
             s.error("panic", format!("frame {stamp}: localizer panicked"));
@@ -510,6 +509,7 @@ async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outp
             }
             continue;
         };
+        apply_gate(&gate, &mut loc, &outputs.stats);
         outputs.publish(&loc, &frame).await;
         let latency = job.arrived.elapsed().as_secs_f64() * 1e3;
         let mut s = lock(&outputs.stats);
@@ -520,7 +520,7 @@ async fn worker(queue: Arc<DropOldestQueue<Job>>, mut localizer: Localizer, outp
         if let Some(f) = &loc.failure {
             s.error(f.key(), format!("frame {stamp}: {f}"));
             drop(s);
-            log(format!("frame {stamp}: no pose: {f}"));
+            warn(format!("frame {stamp}: no pose: {f}"));
         }
     }
 }
@@ -547,6 +547,65 @@ async fn shutdown_signal() {
     }
 }
 
+/// The stamp of the node's own messages (diagnostics): wall time, or with `use_sim_time` the
+/// newest input stamp the node has handled (the bag's time during a replay; 0 before any frame).
+fn node_stamp(use_sim_time: bool, stats: &Stats) -> Stamp {
+    if use_sim_time {
+        stats.last_stamp.unwrap_or(0)
+    } else {
+        now_ns()
+    }
+}
+
+fn gate_width(np: &NodeParams) -> GateWidth {
+    GateWidth {
+        sigmas: np.initialpose_gate_sigmas,
+        min_radius_m: np.initialpose_min_radius_m,
+        min_angle_deg: np.initialpose_min_angle_deg,
+    }
+}
+
+/// With an `/initialpose` gate set: a pose outside it is withdrawn (counted), one inside moves it.
+fn apply_gate(gate: &Mutex<Option<PoseGate>>, loc: &mut Localization, stats: &Mutex<Stats>) {
+    let mut guard = gate.lock().unwrap_or_else(|p| p.into_inner());
+    let (Some(g), Some(pose)) = (guard.as_mut(), loc.pose) else { return };
+    match g.check(&pose) {
+        Ok(()) => g.follow(&pose),
+        Err(miss) => {
+            let detail = format!("frame {}: outside the initial pose gate: {miss}", loc.stamp);
+            warn(&detail);
+            lock(stats).error("outside_initialpose_gate", detail);
+            loc.pose = None;
+            loc.covariance = None;
+        }
+    }
+}
+
+/// The map subscription(s) of `map_qos`: reliable, keep last 1.
+fn map_qos_profiles(map_qos: MapQos) -> Vec<ros2_client::QosProfile> {
+    match map_qos {
+        MapQos::Auto => vec![dds::latched(), dds::reliable(1)],
+        MapQos::TransientLocal => vec![dds::latched()],
+        MapQos::Volatile => vec![dds::reliable(1)],
+    }
+}
+
+/// What each input topic needs from a publisher (the most lenient of the node's readers on
+/// it); the frame inputs are read best effort and match any publisher.
+fn input_requirements(topics: &Topics, map_qos: MapQos, reads_tf: bool) -> Vec<InputRequirement> {
+    let need = |topic: &str, needs_reliable: bool, needs_transient_local: bool| InputRequirement {
+        topic: topic.to_string(),
+        needs_reliable,
+        needs_transient_local,
+    };
+    let mut out = vec![need(&topics.map, true, map_qos == MapQos::TransientLocal)];
+    if reads_tf {
+        out.push(need(&topics.tf, true, false));
+        out.push(need(&topics.tf_static, true, true));
+    }
+    out
+}
+
 /// Runs the node until SIGINT/SIGTERM; `record` also writes every published message to a bag.
 pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<PathBuf>) -> Result<()> {
     let topics = Topics::new(&resolved, &names);
@@ -561,7 +620,15 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
     let context = dds::context()?;
     let mut node = dds::node(&context, &names.namespace, &names.node_name)?;
     let spinner = dds::spawn_spinner(&mut node)?;
-    let stats = Arc::new(Mutex::new(Stats::default()));
+    let mut health = Health::new(Duration::from_secs_f64(np.diagnostics_window_s), np.min_rate_hz, Instant::now());
+    health.watch_input(PartKind::CameraInfo.name(), &topics.camera_info);
+    health.watch_input(PartKind::Correspondences.name(), &topics.correspondences);
+    if np.expect_depth_prior && params.method != Method::Ransac {
+        health.watch_input(PartKind::DepthPrior.name(), &topics.depth_prior);
+    }
+    let mut initial = Stats::default();
+    initial.health = health;
+    let stats = Arc::new(Mutex::new(initial));
     let odom_frame = np.odom_frame.trim().trim_start_matches('/').to_string();
     let tf_buffer = (np.publish_tf && !odom_frame.is_empty()).then(|| Arc::new(Mutex::new(TfBuffer::default())));
 
@@ -595,6 +662,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         expected.push(PartKind::Image);
     }
     let (tx, mut rx) = mpsc::channel::<Input>(256);
+    let gate: Arc<Mutex<Option<PoseGate>>> = Arc::new(Mutex::new(None));
     let mut readers = Vec::new();
     let sensor = dds::sensor_data(10);
     readers.push(spawn_reader(
@@ -615,7 +683,8 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         },
     )?);
     readers.push(spawn_reader(
-        dds::subscription::<msgs::Correspondences>(&mut node, &topics.correspondences, &dds::reliable(10))?,
+        // Best effort: matches reliable and best-effort matchers alike.
+        dds::subscription::<msgs::Correspondences>(&mut node, &topics.correspondences, &dds::sensor_data(10))?,
         topics.correspondences.clone(),
         tx.clone(),
         |m| {
@@ -671,21 +740,21 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             move |m| image_part(&src, ImageSource::RAW, &topic, &m.header, || img::rgb_from_image(&m)),
         )?);
     }
-    readers.push(spawn_reader(
-        dds::subscription::<msgs::PointCloud2>(&mut node, &topics.map, &dds::latched())?,
-        topics.map.clone(),
-        tx.clone(),
-        {
-            let limits = params.limits.clone();
+    for qos in map_qos_profiles(np.map_qos) {
+        let limits = params.limits.clone();
+        readers.push(spawn_reader(
+            dds::subscription::<msgs::PointCloud2>(&mut node, &topics.map, &qos)?,
+            topics.map.clone(),
+            tx.clone(),
             move |m| {
                 let map = convert::map_cloud_from_point_cloud(&m).map(|mut map| {
                     crate::limits::limit_map(&mut map, &limits);
                     map
                 });
                 Some(Input::Map(map.map_err(|e| e.to_string())))
-            }
-        },
-    )?);
+            },
+        )?);
+    }
     if let Some(buffer) = &tf_buffer {
         for (topic, qos) in [(&topics.tf, dds::reliable(100)), (&topics.tf_static, dds::latched())] {
             let buffer = buffer.clone();
@@ -700,6 +769,37 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             )?);
         }
     }
+    let (load_map_tx, map_path, map_frame_id) = (tx.clone(), np.map_path.clone(), np.map_frame_id.clone());
+    let load_map = move || {
+        let (response, map) = services::load_map_answer(&map_path, &map_frame_id);
+        if let Some(map) = map {
+            // The node is shutting down when the ingest side is gone.
+            let _ = load_map_tx.blocking_send(Input::Map(Ok(map)));
+        }
+        response
+    };
+    readers.push(services::spawn_trigger(&mut node, &names.resolve("~/load_map"), load_map, |m| log(m))?);
+    let gate_for_service = gate.clone();
+    let relocalize = move || {
+        let had = gate_for_service.lock().unwrap_or_else(|p| p.into_inner()).take().is_some();
+        let message = if had { "initial pose dropped: localizing globally" } else { "no initial pose was set" };
+        services::TriggerResponse { success: true, message: message.into() }
+    };
+    readers.push(services::spawn_trigger(&mut node, &names.resolve("~/relocalize"), relocalize, |m| log(m))?);
+    let (gate_for_reader, width) = (gate.clone(), gate_width(&np));
+    readers.push(spawn_reader(
+        dds::subscription::<msgs::PoseWithCovarianceStamped>(&mut node, &topics.initial_pose, &dds::reliable(10))?,
+        topics.initial_pose.clone(),
+        tx.clone(),
+        move |m| match PoseGate::from_msg(&m, None, width) {
+            Ok(g) => {
+                log(format!("initial pose: gate {:.2} m / {:.1}°", g.radius_m, g.max_angle_rad.to_degrees()));
+                *gate_for_reader.lock().unwrap_or_else(|p| p.into_inner()) = Some(g);
+                None
+            }
+            Err(e) => Some(Input::Invalid { reason: "invalid_initialpose", detail: e.to_string() }),
+        },
+    )?);
     drop(tx);
 
     let localizer = Localizer::new(params.clone());
@@ -707,7 +807,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         anyhow::bail!("method {}: {e}", params.method.name());
     }
     let queue = Arc::new(DropOldestQueue::new(np.queue_depth));
-    let worker_task = tokio::spawn(worker(queue.clone(), localizer, outputs));
+    let worker_task = tokio::spawn(worker(queue.clone(), localizer, outputs, gate.clone()));
 
     let mut ingest = Ingest {
         assembler: FrameAssembler::new(&expected),
@@ -722,6 +822,11 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         limits: params.limits.clone(),
         limit_counts: Default::default(),
     };
+    if !np.map_path.is_empty() {
+        let loaded = map_file::load(Path::new(&np.map_path), &np.map_frame_id)?;
+        log(format!("map file {}: {} non-finite points left out", np.map_path, loaded.non_finite));
+        ingest.on_input(Input::Map(Ok(loaded.map)));
+    }
     let diag_period = Duration::from_millis(np.diagnostics_period_ms.max(50));
     let fq_name = names.fully_qualified();
     log(format!(
@@ -746,6 +851,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         topics.diagnostics,
     ));
 
+    let mut qos_watch = QosWatch::new(input_requirements(&topics, np.map_qos, tf_buffer.is_some()));
     let mut tick = tokio::time::interval(Duration::from_millis(20));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     let mut diag_tick = tokio::time::interval(diag_period);
@@ -761,10 +867,20 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             },
             _ = tick.tick() => ingest.expire(),
             _ = diag_tick.tick() => {
-                let msg = lock(&stats).report(now_ns(), &fq_name);
+                let offered: Vec<OfferedQos> =
+                    context.domain_participant().discovered_writers().iter().map(OfferedQos::from_discovery).collect();
+                for problem in qos_watch.check(&offered) {
+                    warn(&problem);
+                    lock(&stats).error("incompatible_qos", problem.to_string());
+                }
+                let msg = {
+                    let mut s = lock(&stats);
+                    let stamp = node_stamp(np.use_sim_time, &s);
+                    s.report(stamp, &names.node_name, &fq_name)
+                };
                 recorder.write(&topics.diagnostics, &msg, &stats);
                 if let Err(e) = diag_pub.async_publish(msg).await {
-                    log(format!("publishing diagnostics failed: {e:?}"));
+                    warn(format!("publishing diagnostics failed: {e:?}"));
                 }
             }
         }
@@ -777,15 +893,15 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
     drop(readers);
     queue.close();
     if tokio::time::timeout(Duration::from_secs(30), worker_task).await.is_err() {
-        log("the worker did not finish within 30 s");
+        warn("the worker did not finish within 30 s");
     }
-    let last = lock(&stats).report(now_ns(), &fq_name);
+    let last = lock(&stats).report(now_ns(), &names.node_name, &fq_name);
     recorder.write(&topics.diagnostics, &last, &stats);
     let _ = tokio::time::timeout(Duration::from_millis(500), diag_pub.async_publish(last)).await;
     if let Some(r) = recorder.finish() {
         match r {
             Ok(p) => log(format!("recorded to {}", p.display())),
-            Err(e) => log(format!("finishing the recording failed: {e:#}")),
+            Err(e) => warn(format!("finishing the recording failed: {e:#}")),
         }
     }
     node.stop_spinner();

@@ -3,8 +3,9 @@
 //! `odom → … → camera` tree (as AMCL-style localizers do).
 //!
 //! [`TfBuffer`] keeps the latest transform of every child frame heard on `/tf` (and
-//! `/tf_static`); `odom → camera` is found directly or through one intermediate frame
-//! (`odom → base_link → camera`). No time interpolation: the latest transforms are used.
+//! `/tf_static`); `odom → camera` is found through any chain of frames
+//! (`odom → base_link → camera_link → … → optical`). No time interpolation: the latest
+//! transforms are used, not those at the image's stamp.
 
 use std::collections::HashMap;
 
@@ -49,17 +50,26 @@ impl TfBuffer {
         bad
     }
 
-    /// `parent → child` (parent-from-child), directly or through one intermediate frame.
+    /// `parent → child` (parent-from-child), directly or through any chain of frames
+    /// (`odom → base_link → camera_link → camera_color_frame → optical`), walking up from
+    /// `child`; a loop or a chain longer than [`MAX_CHAIN`] finds nothing.
     pub fn lookup(&self, parent: &str, child: &str) -> Option<Isometry3<f64>> {
-        let (parent, child) = (frame(parent), frame(child));
-        let (mid, mid_child) = self.by_child.get(child)?;
-        if mid == parent {
-            return Some(*mid_child);
+        let (parent, mut current) = (frame(parent), frame(child));
+        let mut parent_from_child = Isometry3::identity();
+        for _ in 0..MAX_CHAIN {
+            let (up, up_from_current) = self.by_child.get(current)?;
+            parent_from_child = up_from_current * parent_from_child;
+            if up == parent {
+                return Some(parent_from_child);
+            }
+            current = up.as_str();
         }
-        let (top, parent_mid) = self.by_child.get(mid.as_str())?;
-        (top == parent).then(|| parent_mid * mid_child)
+        None
     }
 }
+
+/// The longest chain of frames [`TfBuffer::lookup`] follows.
+pub const MAX_CHAIN: usize = 64;
 
 /// `map → odom` from the camera's pose in the map and in odom: (map→camera) · (odom→camera)⁻¹.
 pub fn map_to_odom(map_camera: &Isometry3<f64>, odom_camera: &Isometry3<f64>) -> Isometry3<f64> {
@@ -133,6 +143,28 @@ mod tests {
         assert_eq!(buf.update(&nan).len(), 1);
         assert!(close(&buf.lookup("odom", "camera").unwrap(), &direct));
         assert_eq!(buf.update(&msg("", "camera", &direct)).len(), 1);
+    }
+
+    #[test]
+    fn buffer_follows_long_chains_and_stops_at_loops() {
+        let links = [
+            ("odom", "base_link", iso([1.0, 2.0, 0.0], [0.0, 0.0, 1.0], 0.4)),
+            ("base_link", "camera_link", iso([0.2, 0.0, 0.4], [0.0, 1.0, 0.0], 0.1)),
+            ("camera_link", "camera_color_frame", iso([0.0, 0.03, 0.0], [1.0, 0.0, 0.0], 0.0)),
+            ("camera_color_frame", "camera_color_optical_frame", iso([0.0; 3], [1.0, -1.0, 1.0], 2.09)),
+        ];
+        let mut buf = TfBuffer::default();
+        let mut want = Isometry3::identity();
+        for (parent, child, t) in &links {
+            assert!(buf.update(&tf_message(1, parent, child, t)).is_empty());
+            want *= t;
+        }
+        assert!(close(&buf.lookup("odom", "camera_color_optical_frame").unwrap(), &want));
+        assert!(close(&buf.lookup("base_link", "camera_color_frame").unwrap(), &(links[1].2 * links[2].2)));
+        assert!(buf.lookup("map", "camera_color_optical_frame").is_none());
+        // A loop ends the walk.
+        buf.update(&tf_message(1, "camera_color_optical_frame", "odom", &Isometry3::identity()));
+        assert!(buf.lookup("map", "base_link").is_none());
     }
 
     #[test]

@@ -1,0 +1,158 @@
+//! `/initialpose` (geometry_msgs/PoseWithCovarianceStamped, the camera's pose in the map, as
+//! RViz's "2D Pose Estimate" or a GNSS fix gives it) as a gate on the node's poses: a pose PnP
+//! finds farther from the prior than its covariance allows (`gate_sigmas` standard deviations,
+//! at least `min_radius_m` / `min_angle_deg`) is not published and is counted
+//! (`error.outside_initialpose_gate`). Each accepted pose becomes the gate's centre, so the gate
+//! follows the camera; `~/relocalize` drops it (global localization again).
+//!
+//! The gate acts on PnP's result; steering PnP's sampling with the prior would need a change in
+//! the core (`src/pnp`), which this does not make.
+
+use nalgebra::{Isometry3, UnitQuaternion};
+
+use crate::msgs::{convert, PoseWithCovarianceStamped};
+
+/// How wide the gate is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GateWidth {
+    pub sigmas: f64,
+    pub min_radius_m: f64,
+    pub min_angle_deg: f64,
+}
+
+/// An unusable `/initialpose`.
+#[derive(Debug, thiserror::Error)]
+pub enum InitialPoseError {
+    #[error("initial pose: {0}")]
+    Pose(String),
+    #[error("initial pose in frame {got:?}, the map is in {want:?}")]
+    Frame { got: String, want: String },
+    #[error("initial pose covariance: entry {index} is {value} (must be finite, diagonal >= 0)")]
+    Covariance { index: usize, value: f64 },
+}
+
+/// A pose outside the gate.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("pose {distance_m:.2} m / {angle_deg:.1}° from the prior, gate {radius_m:.2} m / {max_angle_deg:.1}°")]
+pub struct GateMiss {
+    pub distance_m: f64,
+    pub radius_m: f64,
+    pub angle_deg: f64,
+    pub max_angle_deg: f64,
+}
+
+/// The prior the node's poses must agree with.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PoseGate {
+    pub centre: Isometry3<f64>,
+    pub radius_m: f64,
+    pub max_angle_rad: f64,
+}
+
+impl PoseGate {
+    /// The gate of an `/initialpose` message; `map_frame` (when known and the message names a
+    /// frame) must match its frame.
+    pub fn from_msg(
+        msg: &PoseWithCovarianceStamped,
+        map_frame: Option<&str>,
+        width: GateWidth,
+    ) -> Result<Self, InitialPoseError> {
+        let got = msg.header.frame_id.trim_start_matches('/');
+        if let Some(want) = map_frame.filter(|w| !w.is_empty() && !got.is_empty() && *w != got) {
+            return Err(InitialPoseError::Frame { got: got.into(), want: want.into() });
+        }
+        let centre = convert::isometry_from_pose(&msg.pose.pose).map_err(|e| InitialPoseError::Pose(e.to_string()))?;
+        let cov = &msg.pose.covariance;
+        for (index, value) in cov.iter().enumerate() {
+            let diagonal = index % 7 == 0;
+            if !value.is_finite() || (diagonal && *value < 0.0) {
+                return Err(InitialPoseError::Covariance { index, value: *value });
+            }
+        }
+        // Position: the largest of the x, y, z deviations; rotation: of roll, pitch, yaw.
+        let sigma_pos = [0, 7, 14].iter().map(|&i| cov[i].sqrt()).fold(0.0, f64::max);
+        let sigma_rot = [21, 28, 35].iter().map(|&i| cov[i].sqrt()).fold(0.0, f64::max);
+        Ok(Self {
+            centre,
+            radius_m: (width.sigmas * sigma_pos).max(width.min_radius_m),
+            max_angle_rad: (width.sigmas * sigma_rot).max(width.min_angle_deg.to_radians()),
+        })
+    }
+
+    /// Whether `pose` is inside the gate.
+    pub fn check(&self, pose: &Isometry3<f64>) -> Result<(), GateMiss> {
+        let distance_m = (pose.translation.vector - self.centre.translation.vector).norm();
+        let angle = UnitQuaternion::angle_to(&pose.rotation, &self.centre.rotation);
+        if distance_m <= self.radius_m && angle <= self.max_angle_rad {
+            return Ok(());
+        }
+        Err(GateMiss {
+            distance_m,
+            radius_m: self.radius_m,
+            angle_deg: angle.to_degrees(),
+            max_angle_deg: self.max_angle_rad.to_degrees(),
+        })
+    }
+
+    /// Moves the gate to an accepted pose.
+    pub fn follow(&mut self, pose: &Isometry3<f64>) {
+        self.centre = *pose;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::msgs::{Header, PoseWithCovariance};
+    use nalgebra::{Translation3, Vector3};
+
+    fn msg(frame: &str, at: [f64; 3], var_pos: f64, var_rot: f64) -> PoseWithCovarianceStamped {
+        let iso = Isometry3::from_parts(Translation3::new(at[0], at[1], at[2]), UnitQuaternion::identity());
+        let mut covariance = [0.0; 36];
+        for i in 0..3 {
+            covariance[i * 7] = var_pos;
+            covariance[(i + 3) * 7] = var_rot;
+        }
+        PoseWithCovarianceStamped {
+            header: Header::new(0, frame),
+            pose: PoseWithCovariance { pose: convert::pose_from_isometry(&iso), covariance },
+        }
+    }
+
+    const WIDTH: GateWidth = GateWidth { sigmas: 3.0, min_radius_m: 0.5, min_angle_deg: 10.0 };
+
+    #[test]
+    fn gate_from_covariance_follows_accepted_poses() {
+        let mut gate = PoseGate::from_msg(&msg("map", [1.0, 2.0, 0.0], 0.25, 0.01), Some("map"), WIDTH).unwrap();
+        assert!((gate.radius_m - 1.5).abs() < 1e-12);
+        assert!((gate.max_angle_rad - 0.3).abs() < 1e-12);
+        let near = Isometry3::from_parts(Translation3::new(2.0, 2.5, 0.5), UnitQuaternion::identity());
+        assert!(gate.check(&near).is_ok());
+        let far = Isometry3::from_parts(Translation3::new(4.0, 2.0, 0.0), UnitQuaternion::identity());
+        let miss = gate.check(&far).unwrap_err();
+        assert!((miss.distance_m - 3.0).abs() < 1e-12, "{miss}");
+        let turned = Isometry3::from_parts(
+            Translation3::new(1.0, 2.0, 0.0),
+            UnitQuaternion::from_scaled_axis(Vector3::z() * 0.5),
+        );
+        assert!(gate.check(&turned).is_err());
+        gate.follow(&near);
+        assert!(gate
+            .check(&Isometry3::from_parts(Translation3::new(3.4, 2.5, 0.5), UnitQuaternion::identity()))
+            .is_ok());
+        // A zero covariance still leaves the minimum gate.
+        let tight = PoseGate::from_msg(&msg("", [0.0; 3], 0.0, 0.0), Some("map"), WIDTH).unwrap();
+        assert_eq!(tight.radius_m, 0.5);
+    }
+
+    #[test]
+    fn bad_initial_poses_are_named() {
+        let e = PoseGate::from_msg(&msg("odom", [0.0; 3], 0.1, 0.1), Some("map"), WIDTH).unwrap_err();
+        assert!(matches!(e, InitialPoseError::Frame { .. }), "{e}");
+        let e = PoseGate::from_msg(&msg("map", [0.0; 3], -1.0, 0.1), Some("map"), WIDTH).unwrap_err();
+        assert!(matches!(e, InitialPoseError::Covariance { index: 0, .. }), "{e}");
+        let mut m = msg("map", [0.0; 3], 0.1, 0.1);
+        m.pose.pose.orientation.w = f64::NAN;
+        assert!(PoseGate::from_msg(&m, None, WIDTH).is_err());
+    }
+}
