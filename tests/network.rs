@@ -1,8 +1,8 @@
-//! The learned rejector in Rust: ONNX Runtime's scores equal PyTorch's (≤ 1e-4) on the inputs
-//! the model was checked with (`models/parity/sample`, made with the training code), and the
-//! inputs Rust builds for that frame are the recorded ones (`models/parity/rust_inputs`: any
-//! change to them is deliberate and re-recorded with `angle-i2p export bags/synth-hard`, first
-//! frame). Needs ONNX Runtime (`make ort`); skipped without it, a failure in CI.
+//! The learned rejector in Rust: inputs built here equal the ones the model was checked with
+//! (`models/parity/sample`: `angle-i2p export bags/synth-hard`, first frame; re-recorded, with
+//! `training/parity.py`'s PyTorch scores, whenever the inputs change on purpose), and ONNX
+//! Runtime's scores equal PyTorch's (≤ 1e-4) on them — the parity of training and inference.
+//! Needs ONNX Runtime (`make ort`); skipped without it, a failure in CI.
 
 use std::path::{Path, PathBuf};
 
@@ -30,7 +30,7 @@ fn u32s(dir: &Path, name: &str) -> (Vec<u32>, Vec<usize>) {
     (v.into_iter().map(|i| i as u32).collect(), shape)
 }
 
-/// The inputs PyTorch scored (`models/parity/sample`).
+/// The recorded sample (`models/parity/sample`), the inputs PyTorch scored.
 fn stored_inputs() -> NetworkInputs {
     inputs_in(&sample_dir())
 }
@@ -71,7 +71,7 @@ fn rust_inputs_are_reproduced_exactly() {
     let map = IndexedMap::new(bag.map.unwrap().points);
     let mut spectral = SpectralRejector::new(params.network.keypoint_spectral(params.spectral.clone()));
     let now = build_inputs(&geometry, Some(&map), &mut spectral, &params.network);
-    let stored = inputs_in(&manifest().join("models/parity/rust_inputs"));
+    let stored = stored_inputs();
     let flat: Vec<f32> = now.features.iter().flatten().copied().collect();
     let stored_flat: Vec<f32> = stored.features.iter().flatten().copied().collect();
     assert_close(&flat, &stored_flat, 1e-6, "features");
@@ -110,4 +110,18 @@ fn a_model_without_global_inputs_runs_on_the_same_inputs() {
     let scores = rejector.run(&inputs).unwrap();
     assert_eq!(scores.len(), inputs.features.len());
     assert!(scores.iter().all(|s| (0.0..=1.0).contains(s)));
+}
+
+/// The model fine-tuned on the mix of sensors, scenes and priors (`models/angle_i2p_mix.onnx`,
+/// see the model card) takes the same inputs and scores every correspondence.
+#[test]
+fn the_mix_model_runs_on_the_same_inputs() {
+    let Some(mut mix) = rejector("angle_i2p_mix.onnx") else { return };
+    let Some(mut default) = rejector("angle_i2p.onnx") else { return };
+    let inputs = stored_inputs();
+    let scores = mix.run(&inputs).unwrap();
+    assert_eq!(scores.len(), inputs.features.len());
+    assert!(scores.iter().all(|s| (0.0..=1.0).contains(s)));
+    let other = default.run(&inputs).unwrap();
+    assert!(scores.iter().zip(&other).any(|(a, b)| (a - b).abs() > 1e-3), "a different model");
 }
