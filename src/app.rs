@@ -28,18 +28,36 @@ pub struct ReplayReport {
     pub issues: Vec<String>,
 }
 
+/// What `replay` tells its caller after each frame.
+pub struct FrameProgress<'a> {
+    /// 0-based index of the frame, and how many frames the bag holds (its correspondences
+    /// messages; at least `index + 1`).
+    pub index: usize,
+    pub expected: usize,
+    pub localization: &'a Localization,
+    /// Whether the frame registered (RMSE under 0.1 m, as `eval`), when the bag carries its
+    /// ground-truth pose and depth.
+    pub registered: Option<bool>,
+}
+
+/// Whether `loc` registers `frame` (`None` without ground truth).
+fn registered(frame: &crate::frame::Frame, loc: &Localization) -> Option<bool> {
+    let gt = frame.ground_truth.as_ref()?;
+    let (pose, depth) = (gt.pose.as_ref()?, gt.depth.as_ref()?);
+    Some(loc.pose.as_ref().is_some_and(|p| pose_errors(p, pose, &frame.intrinsics, depth).registered()))
+}
+
 /// Runs `localizer` over every frame of the bag at `input` and writes the results to a new bag
 /// at `output`, frame by frame as they are read (memory does not grow with the bag's length).
 /// The bag is checked whole before the output is created; the map is used wherever it is in
 /// the bag. A frame that cannot be processed is skipped with its reason (in `/diagnostics` and
-/// the report). `on_frame(k, n, loc)` is called after each frame; `n` is the number of
-/// correspondence messages in the bag (the frames expected).
+/// the report). `on_frame` is called after each frame ([`FrameProgress`]).
 pub fn replay(
     input: &Path,
     output: &Path,
     localizer: &mut Localizer,
     topics: &TopicMap,
-    mut on_frame: impl FnMut(usize, usize, &Localization),
+    mut on_frame: impl FnMut(&FrameProgress),
 ) -> Result<ReplayReport> {
     let limits = localizer.params().limits.clone();
     let mut stream = FrameStream::open(input, topics, &limits)?;
@@ -67,10 +85,11 @@ pub fn replay(
             }
         };
         let mut loc = localizer.process(&frame);
+        let registered = registered(&frame, &loc);
         drop(frame);
         write_localization(&mut writer, topics, &loc)?;
-        let k = report.localizations.len();
-        on_frame(k, expected.max(k + 1), &loc);
+        let index = report.localizations.len();
+        on_frame(&FrameProgress { index, expected: expected.max(index + 1), localization: &loc, registered });
         loc.kept = Vec::new();
         report.localizations.push(loc);
     }

@@ -113,6 +113,10 @@ pub fn distance_consistency(
 ) {
     let n = image.len().min(map.len());
     out.reset(n);
+    if n == 0 {
+        // No pair (e.g. no correspondence has a usable prior depth): an empty matrix.
+        return;
+    }
     let img = Soa::new(&image[..n]);
     let mp = Soa::new(&map[..n]);
     let (sa, sr) = (sigma_abs as f32, sigma_rel as f32);
@@ -244,6 +248,14 @@ mod tests {
         let outlier_support: f32 = m.row(45).iter().sum();
         let inlier_support: f32 = m.row(5).iter().sum();
         assert!(inlier_support > 3.0 * outlier_support, "{inlier_support} vs {outlier_support}");
+    }
+
+    #[test]
+    fn empty_clouds_give_an_empty_matrix() {
+        let mut m = ConsistencyMatrix::default();
+        distance_consistency(&[], &[], 0.05, 0.1, &mut m);
+        angle_consistency(&[], &[], None, 0.2, &mut m);
+        assert!(m.values.is_empty());
     }
 
     #[test]

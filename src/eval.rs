@@ -69,6 +69,13 @@ pub struct PoseErrors {
     pub rmse_m: f64,
 }
 
+impl PoseErrors {
+    /// Whether these errors register the frame (RMSE below the recall threshold, 0.1 m).
+    pub fn registered(&self) -> bool {
+        self.rmse_m < RECALL_THRESHOLD
+    }
+}
+
 pub fn pose_errors(est: &Isometry3<f64>, gt: &Isometry3<f64>, k: &Intrinsics, gt_depth: &DepthImage) -> PoseErrors {
     let (r_est, r_gt) = (est.rotation.to_rotation_matrix().into_inner(), gt.rotation.to_rotation_matrix().into_inner());
     let d_r: Matrix3<f64> = r_est.transpose() * r_gt;
@@ -104,7 +111,7 @@ pub struct FrameMetrics {
 
 impl FrameMetrics {
     pub fn registered(&self) -> bool {
-        self.errors.is_some_and(|e| e.rmse_m < RECALL_THRESHOLD)
+        self.errors.is_some_and(|e| e.registered())
     }
 }
 

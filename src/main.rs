@@ -188,15 +188,24 @@ fn run(cli: Cli) -> Result<()> {
             let topics = params.topics.clone();
             let mut localizer = Localizer::new(params);
             let bar = ProgressBar::new(0).with_style(
-                ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} frames {msg}")
+                ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} frames, {per_sec} {msg}")
                     .unwrap_or_else(|_| ProgressStyle::default_bar())
                     .progress_chars("=> "),
             );
             bar.set_prefix(format!("replay {}", localizer.params().method.name()));
-            let report = app::replay(&bag, &out, &mut localizer, &topics, |k, n, loc| {
-                bar.set_length(n as u64);
-                bar.set_position(k as u64 + 1);
-                bar.set_message(format!("{:.2} ms", loc.timings.total_ms));
+            let (mut scored, mut registered) = (0usize, 0usize);
+            let report = app::replay(&bag, &out, &mut localizer, &topics, |progress| {
+                let loc = progress.localization;
+                bar.set_length(progress.expected as u64);
+                bar.set_position(progress.index as u64 + 1);
+                if let Some(r) = progress.registered {
+                    scored += 1;
+                    registered += r as usize;
+                }
+                let rr = (scored > 0)
+                    .then(|| format!(", RR {:.1} % ({registered}/{scored})", 100.0 * registered as f64 / scored as f64))
+                    .unwrap_or_default();
+                bar.set_message(format!("{:.2} ms{rr}", loc.timings.total_ms));
                 if verbose {
                     let line = format!(
                         "frame {}: {} kept, {} inliers, {} hypotheses, {:.2} ms (fast path {:.2}, geometry {:.2}, reject {:.2}, \

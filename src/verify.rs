@@ -123,6 +123,9 @@ fn splitmix(mut x: u64) -> u64 {
     x ^ (x >> 31)
 }
 
+/// Render cells a verifier allocates at most (a 32 768-px-wide image in 32 px cells, squared).
+const MAX_CELLS: usize = 1 << 20;
+
 /// One frame's verifier: the prior sampled at the centres of the image cells, and the map.
 pub struct PriorVerifier<'a> {
     map: &'a RenderMap,
@@ -151,6 +154,11 @@ impl<'a> PriorVerifier<'a> {
         }
         let cols = (intrinsics.width as f64 / params.cell_px).ceil() as usize;
         let rows = (intrinsics.height as f64 / params.cell_px).ceil() as usize;
+        if cols.saturating_mul(rows) > MAX_CELLS {
+            // An image this large never reaches the core through the input limits; refuse it here
+            // too rather than allocate for it.
+            return None;
+        }
         let mut known = 0;
         let mut cells = Vec::with_capacity(rows * cols);
         for r in 0..rows {

@@ -1,6 +1,7 @@
 //! Fuzzing on stable Rust with proptest: the CDR decoders, the MCAP reader (mutated bytes of a
-//! shipped bag) and the frame assembler get arbitrary and mutated input and must answer with a
-//! value or an error, never a panic, an abort or an unbounded allocation.
+//! shipped bag), the frame assembler and `Localizer::process` (arbitrary frames and maps) get
+//! arbitrary and mutated input and must answer with a value or an error, never a panic, an abort
+//! or an unbounded allocation.
 //!
 //! The suite runs a short mode (`ANGLE_I2P_FUZZ_CASES` unset: a few dozen cases per target,
 //! seconds); `make fuzz` raises the case count for minutes. Inputs that once crashed are kept
@@ -310,5 +311,79 @@ proptest! {
         w.finish().unwrap();
         let mut stream = FrameStream::open(&bag, &topics, &InputLimits::default()).unwrap();
         while stream.next_frame().unwrap().is_some() {}
+    }
+}
+
+/// A number as inputs bring them: mostly ordinary, sometimes 0, negative, huge or not a number.
+fn wild(lo: f64, hi: f64) -> impl Strategy<Value = f64> {
+    prop_oneof![
+        8 => lo..hi,
+        1 => Just(0.0),
+        1 => Just(f64::NAN),
+        1 => Just(f64::INFINITY),
+        1 => Just(-1e30),
+        1 => Just(1e30),
+        1 => -1.0f64..0.0,
+    ]
+}
+
+/// A frame as the edges can hand it to the core (sides and counts within the default input
+/// limits, scores clamped), with arbitrary values everywhere else.
+fn frame() -> impl Strategy<Value = angle_i2p::frame::Frame> {
+    let intrinsics = (wild(100.0, 900.0), wild(100.0, 900.0), wild(0.0, 640.0), wild(0.0, 480.0), 0u32..1300, 0u32..1000)
+        .prop_map(|(fx, fy, cx, cy, width, height)| Intrinsics { fx, fy, cx, cy, width, height });
+    let correspondence = (wild(-50.0, 700.0), wild(-50.0, 500.0), wild(-3.0, 3.0), wild(-3.0, 3.0), wild(0.2, 6.0), 0.0f32..=1.0)
+        .prop_map(|(u, v, x, y, z, score)| angle_i2p::frame::Correspondence {
+            pixel: nalgebra::Point2::new(u, v),
+            point: nalgebra::Point3::new(x, y, z),
+            score,
+        });
+    let prior = proptest::option::of((1u32..24, 1u32..18).prop_flat_map(|(w, h)| {
+        proptest::collection::vec(wild(0.1, 8.0).prop_map(|v| v as f32), (w * h) as usize)
+            .prop_map(move |data| DepthImage::new(w, h, data))
+    }));
+    (intrinsics, proptest::collection::vec(correspondence, 0..80), prior).prop_map(|(intrinsics, correspondences, depth_prior)| {
+        angle_i2p::frame::Frame {
+            stamp: 1,
+            camera_frame_id: "camera".into(),
+            map_frame_id: "map".into(),
+            intrinsics,
+            correspondences,
+            depth_prior,
+            image: None,
+            ground_truth: None,
+        }
+    })
+}
+
+proptest! {
+    #![proptest_config(config(24))]
+
+    /// `Localizer::process` on arbitrary frames and maps: a pose or a failure with its reason,
+    /// never a panic, for every method that needs no model file (the learned one too when
+    /// ONNX Runtime is there), with and without the cascade's fast path.
+    #[test]
+    fn localizer_takes_any_frame(
+        frame in frame(),
+        map in proptest::collection::vec((-5.0f32..5.0, -5.0f32..5.0, -1.0f32..8.0), 0..300),
+        fast_path in any::<bool>(),
+    ) {
+        use angle_i2p::pipeline::{Localizer, Method};
+        let map = angle_i2p::frame::MapCloud {
+            frame_id: "map".into(),
+            points: map.into_iter().map(|(x, y, z)| nalgebra::Point3::new(x, y, z)).collect(),
+        };
+        for method in [Method::Ransac, Method::Consistency, Method::AngleI2p] {
+            let mut params = angle_i2p::params::Params { method, ..Default::default() };
+            params.cascade.enabled = fast_path;
+            params.pnp.max_iterations = 2000;
+            let mut localizer = Localizer::new(params);
+            if localizer.setup_error().is_some() {
+                continue;
+            }
+            localizer.set_map(&map);
+            let loc = localizer.process(&frame);
+            prop_assert!(loc.pose.is_some() || loc.failure.is_some());
+        }
     }
 }

@@ -101,6 +101,25 @@ fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
     assert!(matches!(loc.failure, Some(Failure::Rejection(_))), "{:?}", loc.failure);
     assert!(loc.failure.unwrap().to_string().contains("depth prior"));
 
+    // A prior that says nothing (all 0, all NaN, all negative) reaches the rejectors' full path
+    // as a reason, not a panic.
+    for value in [0.0, f32::NAN, -1.0] {
+        let mut blank = scene.frames[0].clone();
+        if let Some(prior) = blank.depth_prior.as_mut() {
+            prior.data.iter_mut().for_each(|d| *d = value);
+        }
+        for method in [Method::Consistency, Method::AngleI2p] {
+            let mut params = Params { method, ..Params::default() };
+            params.cascade.enabled = false;
+            let mut full = Localizer::new(params);
+            if full.setup_error().is_some() {
+                continue;
+            }
+            let loc = full.process(&blank);
+            assert!(loc.failure.is_some() || loc.pose.is_some(), "{value}: {:?}", loc.failure);
+        }
+    }
+
     // Garbage correspondences: no consensus is a reason, not a panic.
     let mut garbage = scene.frames[0].clone();
     let n = garbage.correspondences.len();
@@ -207,4 +226,25 @@ fn easy_frames_end_on_the_fast_path_and_hard_ones_do_not() {
             }
         }
     }
+}
+
+/// `replay` tells its caller, frame by frame, whether the frame registered (the progress bar's
+/// running RR); over the bag that is `eval`'s RR.
+#[test]
+fn replay_reports_each_frames_registration_as_it_goes() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let bag = common::manifest().join("bags/synth-extreme");
+    let params = Params { method: Method::Ransac, ..Params::default() };
+    let mut localizer = Localizer::new(params.clone());
+    let (mut seen, mut registered) = (0usize, 0usize);
+    app::replay(&bag, &out, &mut localizer, &params.topics, |p| {
+        assert_eq!(p.index, seen);
+        seen += 1;
+        registered += usize::from(p.registered.expect("the bag has ground truth"));
+    })
+    .unwrap();
+    let run = app::evaluate_bags(&bag, &[out], &params).unwrap();
+    assert_eq!(seen, 20);
+    assert!((100.0 * registered as f64 / seen as f64 - run.evaluations[0].summary.rr).abs() < 1e-9);
 }
