@@ -7,6 +7,7 @@
 //! with a printed reason, or fail when `CI` is set.
 
 mod common;
+mod netns;
 
 use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
@@ -22,69 +23,13 @@ use angle_i2p::node::diagnostics::status_value;
 use angle_i2p::params::Params;
 use angle_i2p::pipeline::Localizer;
 use common::{binary, manifest, python, skip_or_fail};
+use netns::{mark_done, run_in_netns, wait_bounded};
 
-const IN_NETNS: &str = "ANGLE_I2P_IN_NETNS";
-const DONE_MARKER: &str = "ANGLE_I2P_NETNS_DONE";
 const DOMAIN: &str = "17";
 
-/// Runs the ignored test `inner` of this binary inside a fresh network namespace.
-fn run_in_netns(inner: &str) {
-    let usable = Command::new("unshare")
-        .args(["-rn", "sh", "-c", "ip link set lo up && ip link set lo multicast on"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false);
-    if !usable {
-        skip_or_fail("cannot make a private network namespace (`unshare -rn` + `ip` unavailable or not permitted)");
-        return;
-    }
-    let exe = std::env::current_exe().expect("test binary path");
-    let marker_dir = tempfile::tempdir().expect("tmp");
-    let marker = marker_dir.path().join("done");
-    let script = "ip link set lo up && ip link set lo multicast on && \
-                  (ip route add 224.0.0.0/4 dev lo 2>/dev/null || true) && exec \"$0\" \"$@\"";
-    let mut child = Command::new("unshare")
-        .args(["-rn", "sh", "-c", script])
-        .arg(&exe)
-        .args(["--ignored", "--exact", inner, "--nocapture", "--test-threads=1"])
-        .env(IN_NETNS, "1")
-        .env(DONE_MARKER, &marker)
-        .spawn()
-        .expect("spawn unshare");
-    let status = wait_bounded(&mut child, Duration::from_secs(400)).expect("the namespaced test timed out");
-    assert!(status.success(), "{inner} failed inside the network namespace ({status})");
-    // `--exact` with a stale name would run nothing and succeed: the body leaves a marker.
-    assert!(marker.exists(), "{inner} did not run inside the namespace");
-}
-
-/// Called by a namespaced body when it got to its end.
 /// The start of an inner test: it must run inside the namespace `via` made, on the test domain.
 fn enter_netns(via: &str) {
-    assert!(std::env::var_os(IN_NETNS).is_some(), "run via {via}");
-    std::env::set_var("ROS_DOMAIN_ID", DOMAIN);
-}
-
-fn mark_done() {
-    if let Some(p) = std::env::var_os(DONE_MARKER) {
-        std::fs::write(p, "ok").expect("marker");
-    }
-}
-
-fn wait_bounded(child: &mut Child, limit: Duration) -> Option<std::process::ExitStatus> {
-    let end = Instant::now() + limit;
-    loop {
-        if let Ok(Some(s)) = child.try_wait() {
-            return Some(s);
-        }
-        if Instant::now() >= end {
-            let _ = child.kill();
-            let _ = child.wait();
-            return None;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    netns::enter_netns(via, DOMAIN);
 }
 
 /// Kills a child on drop (a failing assertion never leaves a node running).
