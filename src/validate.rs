@@ -115,6 +115,7 @@ impl Params {
         real("final_refine.loss_scale_px", f.loss_scale_px, Range::Positive)?;
         let c = &self.cascade;
         at_least("cascade.max_iterations", c.max_iterations as u64, 1, "at least 1")?;
+        at_least("cascade.probe_iterations", c.probe_iterations as u64, 1, "at least 1")?;
         real("cascade.min_inlier_ratio", c.min_inlier_ratio, Range::Unit)?;
         real("cascade.min_cell_share", c.min_cell_share, Range::Unit)?;
         at_least("cascade.grid_columns", c.grid_columns as u64, 1, "at least 1")

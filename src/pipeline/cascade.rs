@@ -16,6 +16,9 @@ pub struct CascadeParams {
     /// 99.99 % confidence down to an inlier ratio of ~0.29, the lowest one `min_inlier_ratio`
     /// accepts.
     pub max_iterations: usize,
+    /// Hypotheses of the first, short attempt; a frame whose support then is under half
+    /// `min_inlier_ratio` skips the rest of the budget.
+    pub probe_iterations: usize,
     /// The pose's inliers must be at least this share of the correspondences: a majority-like
     /// support that no wrong pose explaining a displaced patch of matches reaches …
     pub min_inlier_ratio: f64,
@@ -28,7 +31,14 @@ pub struct CascadeParams {
 
 impl Default for CascadeParams {
     fn default() -> Self {
-        Self { enabled: true, max_iterations: 400, min_inlier_ratio: 0.3, min_cell_share: 0.5, grid_columns: 16 }
+        Self {
+            enabled: true,
+            max_iterations: 400,
+            probe_iterations: 100,
+            min_inlier_ratio: 0.3,
+            min_cell_share: 0.5,
+            grid_columns: 16,
+        }
     }
 }
 
@@ -42,21 +52,48 @@ pub struct FastPathCheck {
 impl CascadeParams {
     /// The budgeted RANSAC's solution when it settles the frame, else what it measured.
     pub fn settle(&self, frame: &Frame, pnp: &PnpParams, seed: u64) -> Result<PnpSolution, FastPathCheck> {
+        let budget = self.max_iterations.max(1);
+        // A short probe first: a frame whose best support after it is under half the bar is
+        // hard (a true ratio at the bar is all but certain to show more by then) and goes on
+        // at once; only frames near the bar get the whole budget.
+        let probe = self.probe_iterations.clamp(1, budget);
+        let first = self.attempt(frame, pnp, probe, seed)?;
+        if first.1.inlier_ratio >= self.min_inlier_ratio && first.1.cell_share >= self.min_cell_share {
+            return Ok(first.0);
+        }
+        if probe == budget || first.1.inlier_ratio < 0.5 * self.min_inlier_ratio {
+            return Err(first.1);
+        }
+        let (solution, check) = self.attempt(frame, pnp, budget, seed)?;
+        if check.inlier_ratio >= self.min_inlier_ratio && check.cell_share >= self.min_cell_share {
+            Ok(solution)
+        } else {
+            Err(check)
+        }
+    }
+
+    /// LO-RANSAC on every correspondence with at most `iterations` hypotheses; its solution and
+    /// what the cascade's acceptance measures of it.
+    fn attempt(
+        &self,
+        frame: &Frame,
+        pnp: &PnpParams,
+        iterations: usize,
+        seed: u64,
+    ) -> Result<(PnpSolution, FastPathCheck), FastPathCheck> {
         let n = frame.correspondences.len();
         let pixels: Vec<_> = frame.correspondences.iter().map(|c| c.pixel).collect();
         let points: Vec<_> = frame.correspondences.iter().map(|c| c.point).collect();
         let scores: Vec<f32> = frame.correspondences.iter().map(|c| c.score).collect();
         let params = PnpParams {
-            max_iterations: self.max_iterations.max(1),
-            min_iterations: pnp.min_iterations.min(self.max_iterations.max(1)),
+            max_iterations: iterations,
+            min_iterations: pnp.min_iterations.min(iterations),
             coverage_cell_px: 0.0,
             ..pnp.clone()
         };
         let guidance = Guidance { scores: Some(&scores), ..Guidance::default() };
-        let Ok(solution) = solve_pnp_ransac_guided(&frame.intrinsics, &pixels, &points, &guidance, &params, seed)
-        else {
-            return Err(FastPathCheck::default());
-        };
+        let solution = solve_pnp_ransac_guided(&frame.intrinsics, &pixels, &points, &guidance, &params, seed)
+            .map_err(|_| FastPathCheck::default())?;
         let cell_px = frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64;
         let all = cells_covered(pixels.iter(), cell_px);
         let supported =
@@ -65,11 +102,7 @@ impl CascadeParams {
             inlier_ratio: solution.num_inliers as f64 / n.max(1) as f64,
             cell_share: supported as f64 / all.max(1) as f64,
         };
-        if check.inlier_ratio >= self.min_inlier_ratio && check.cell_share >= self.min_cell_share {
-            Ok(solution)
-        } else {
-            Err(check)
-        }
+        Ok((solution, check))
     }
 }
 
