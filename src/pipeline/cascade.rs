@@ -52,58 +52,65 @@ pub struct FastPathCheck {
 impl CascadeParams {
     /// The budgeted RANSAC's solution when it settles the frame, else what it measured.
     pub fn settle(&self, frame: &Frame, pnp: &PnpParams, seed: u64) -> Result<PnpSolution, FastPathCheck> {
+        let matches = Matches {
+            pixels: frame.correspondences.iter().map(|c| c.pixel).collect(),
+            points: frame.correspondences.iter().map(|c| c.point).collect(),
+            scores: frame.correspondences.iter().map(|c| c.score).collect(),
+        };
         let budget = self.max_iterations.max(1);
         // A short probe first: a frame whose best support after it is under half the bar is
         // hard (a true ratio at the bar is all but certain to show more by then) and goes on
         // at once; only frames near the bar get the whole budget.
         let probe = self.probe_iterations.clamp(1, budget);
-        let first = self.attempt(frame, pnp, probe, seed)?;
-        if first.1.inlier_ratio >= self.min_inlier_ratio && first.1.cell_share >= self.min_cell_share {
-            return Ok(first.0);
+        let check = match self.attempt(frame, &matches, pnp, probe, seed)? {
+            Ok(solution) => return Ok(solution),
+            Err(check) => check,
+        };
+        if probe == budget || check.inlier_ratio < 0.5 * self.min_inlier_ratio {
+            return Err(check);
         }
-        if probe == budget || first.1.inlier_ratio < 0.5 * self.min_inlier_ratio {
-            return Err(first.1);
-        }
-        let (solution, check) = self.attempt(frame, pnp, budget, seed)?;
-        if check.inlier_ratio >= self.min_inlier_ratio && check.cell_share >= self.min_cell_share {
-            Ok(solution)
-        } else {
-            Err(check)
-        }
+        self.attempt(frame, &matches, pnp, budget, seed)?
     }
 
-    /// LO-RANSAC on every correspondence with at most `iterations` hypotheses; its solution and
-    /// what the cascade's acceptance measures of it.
+    /// LO-RANSAC on every correspondence with at most `iterations` hypotheses: `Ok(Ok(pose))`
+    /// when it settles the frame, `Ok(Err(check))` with what it measured when it does not.
     fn attempt(
         &self,
         frame: &Frame,
+        matches: &Matches,
         pnp: &PnpParams,
         iterations: usize,
         seed: u64,
-    ) -> Result<(PnpSolution, FastPathCheck), FastPathCheck> {
-        let n = frame.correspondences.len();
-        let pixels: Vec<_> = frame.correspondences.iter().map(|c| c.pixel).collect();
-        let points: Vec<_> = frame.correspondences.iter().map(|c| c.point).collect();
-        let scores: Vec<f32> = frame.correspondences.iter().map(|c| c.score).collect();
+    ) -> Result<Result<PnpSolution, FastPathCheck>, FastPathCheck> {
         let params = PnpParams {
             max_iterations: iterations,
             min_iterations: pnp.min_iterations.min(iterations),
             coverage_cell_px: 0.0,
             ..pnp.clone()
         };
-        let guidance = Guidance { scores: Some(&scores), ..Guidance::default() };
-        let solution = solve_pnp_ransac_guided(&frame.intrinsics, &pixels, &points, &guidance, &params, seed)
-            .map_err(|_| FastPathCheck::default())?;
+        let guidance = Guidance { scores: Some(&matches.scores), ..Guidance::default() };
+        let solution =
+            solve_pnp_ransac_guided(&frame.intrinsics, &matches.pixels, &matches.points, &guidance, &params, seed)
+                .map_err(|_| FastPathCheck::default())?;
         let cell_px = frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64;
+        let pixels = &matches.pixels;
         let all = cells_covered(pixels.iter(), cell_px);
         let supported =
             cells_covered(pixels.iter().zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p), cell_px);
         let check = FastPathCheck {
-            inlier_ratio: solution.num_inliers as f64 / n.max(1) as f64,
+            inlier_ratio: solution.num_inliers as f64 / pixels.len().max(1) as f64,
             cell_share: supported as f64 / all.max(1) as f64,
         };
-        Ok((solution, check))
+        let settled = check.inlier_ratio >= self.min_inlier_ratio && check.cell_share >= self.min_cell_share;
+        Ok(if settled { Ok(solution) } else { Err(check) })
     }
+}
+
+/// A frame's correspondences split as PnP takes them, built once for both attempts.
+struct Matches {
+    pixels: Vec<nalgebra::Point2<f64>>,
+    points: Vec<nalgebra::Point3<f64>>,
+    scores: Vec<f32>,
 }
 
 /// Distinct image cells of side `cell_px` holding at least one of `pixels`.

@@ -224,7 +224,7 @@ impl Localizer {
             .filter(|(_, &inlier)| inlier)
             .map(|(c, _)| with_score(*c, 1.0))
             .collect();
-        self.accept(frame, &solution, out);
+        self.accept(&solution, self.verifier(frame).as_ref(), out);
         out.timings.pnp_ms = out.timings.fast_path_ms;
         true
     }
@@ -294,7 +294,7 @@ impl Localizer {
                         .map(|(&i, _)| with_score(frame.correspondences[i], 1.0))
                         .collect(),
                 };
-                self.accept(frame, &solution, out);
+                self.accept(&solution, verifier.as_ref(), out);
             }
             Err(e) => {
                 if let Some(r) = &rejection {
@@ -307,13 +307,12 @@ impl Localizer {
     }
 
     /// Fills `out` with the solved pose, and the prior's quality at it.
-    fn accept(&self, frame: &Frame, solution: &PnpSolution, out: &mut Localization) {
+    fn accept(&self, solution: &PnpSolution, verifier: Option<&PriorVerifier>, out: &mut Localization) {
         out.pose = Some(solution.pose);
         out.covariance = Some(solution.covariance);
         out.num_inliers = solution.num_inliers;
         out.pnp_iterations += solution.iterations;
-        out.prior_quality =
-            self.verifier(frame).map(|v| v.agreement(&solution.pose).in_view_share(self.params.verify.min_view));
+        out.prior_quality = verifier.map(|v| v.agreement(&solution.pose).in_view_share(self.params.verify.min_view));
     }
 
     /// The verifier of PnP's hypotheses against the frame's dense prior, when there is a prior,
