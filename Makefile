@@ -73,3 +73,11 @@ bags: build
 
 clean:
 	rm -rf target out $(VENV) .ort training/.venv
+
+# Behaviour check for refactors: replay the shipped and shared val bags with every method and
+# compare digests of the outputs (timings left out) with tests/fixtures/output_digests.txt.
+# `make digests` checks; `make digests DIGESTS=record` re-records after a deliberate change.
+DIGESTS ?= check
+.PHONY: digests
+digests: build py-venv
+	./scripts/output_digests.sh $(DIGESTS)
