@@ -6,6 +6,7 @@
 
 mod frames;
 pub mod metadata;
+pub mod qos;
 mod reader;
 mod writer;
 
@@ -231,6 +232,7 @@ pub fn write_input_bag(
     let mut w = BagWriter::create(dir)?;
     let first = frames.iter().map(|f| f.stamp).min().unwrap_or(100_000_000);
     let map_stamp = first.saturating_sub(100_000_000).max(0);
+    w.latch(&topics.map);
     w.write(&topics.map, map_stamp, &convert::point_cloud(map_stamp, map))?;
     let mut order: Vec<&Frame> = frames.iter().collect();
     order.sort_by_key(|f| f.stamp);
@@ -308,6 +310,30 @@ mod tests {
         let (ga, gb) = (a.ground_truth.as_ref().unwrap(), b.ground_truth.as_ref().unwrap());
         assert!((ga.pose.unwrap().to_homogeneous() - gb.pose.unwrap().to_homogeneous()).norm() < 1e-12);
         assert_eq!(ga.depth, gb.depth);
+    }
+
+    #[test]
+    fn input_bag_offers_the_map_latched_and_the_rest_volatile() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("bag");
+        let map = MapCloud { frame_id: "map".into(), points: vec![Point3::new(1.0, 2.0, 3.0)] };
+        let topics = TopicMap::default();
+        write_input_bag(&dir, &topics, &map, &[frame(1_700_000_000_100_000_000, true)]).unwrap();
+        let text = std::fs::read_to_string(dir.join("metadata.yaml")).unwrap();
+        let meta: metadata::MetadataFile = serde_yaml::from_str(&text).unwrap();
+        let durability = |topic: &str| {
+            let t = meta.rosbag2_bagfile_information.topics_with_message_count.iter();
+            let t = t.map(|t| &t.topic_metadata).find(|m| m.name == topic).unwrap();
+            t.offered_qos_profiles[0]["durability"].as_str().unwrap().to_string()
+        };
+        assert_eq!(durability(&topics.map), "transient_local");
+        assert_eq!(durability(&topics.correspondences), "volatile");
+        // rosbag2's MCAP storage reads the same list from the channel's metadata.
+        let bytes = std::fs::read(dir.join("bag.mcap")).unwrap();
+        let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+        let channel = summary.channels.values().find(|c| c.topic == topics.map).unwrap();
+        let profiles: serde_yaml::Value = serde_yaml::from_str(&channel.metadata["offered_qos_profiles"]).unwrap();
+        assert_eq!(profiles[0]["durability"].as_str(), Some("transient_local"));
     }
 
     #[test]

@@ -6,6 +6,7 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 use super::metadata::{self, BagInfo, FileInfo, MetadataFile, StartingTime, TopicMetadata, TopicWithCount};
+use super::qos::OfferedQos;
 use super::BagError;
 use crate::msgs::{to_cdr, RosMessage};
 
@@ -27,6 +28,7 @@ struct Topic {
     type_hash: String,
     count: u64,
     sequence: u32,
+    qos: OfferedQos,
 }
 
 /// Writes a rosbag2 bag; schemas and channels are registered on first use of a topic.
@@ -39,6 +41,8 @@ pub struct BagWriter {
     schemas: HashMap<(String, String), u16>,
     start: Option<u64>,
     end: u64,
+    /// Topics to be offered latched once registered (see [`BagWriter::latch`]).
+    latched: Vec<String>,
 }
 
 impl BagWriter {
@@ -82,12 +86,20 @@ impl BagWriter {
             schemas: HashMap::new(),
             start: None,
             end: 0,
+            latched: Vec::new(),
         })
     }
 
     /// The bag directory.
     pub fn dir(&self) -> &Path {
         &self.dir
+    }
+
+    /// Records `topic` as offered latched (reliable, transient local, depth 1), as a map server
+    /// publishes a map, so `ros2 bag play` offers it to late subscribers. Call before the
+    /// topic's first message.
+    pub fn latch(&mut self, topic: &str) {
+        self.latched.push(topic.to_string());
     }
 
     /// Serializes `msg` as CDR and writes it on `topic` at `log_time_ns` (also publish time).
@@ -163,9 +175,11 @@ impl BagWriter {
                 id
             }
         };
-        let metadata = BTreeMap::from([("offered_qos_profiles".to_string(), "[]".to_string())]);
+        let qos = if self.latched.iter().any(|t| t == topic) { OfferedQos::LATCHED } else { OfferedQos::default() };
+        let metadata = BTreeMap::from([("offered_qos_profiles".to_string(), qos.profiles_yaml())]);
         let channel_id = mcap.add_channel(schema_id, topic, "cdr", &metadata).map_err(&werr)?;
-        let t = Topic { channel_id, type_name: type_name.into(), type_hash: type_hash.into(), count: 0, sequence: 0 };
+        let (type_name, type_hash) = (type_name.into(), type_hash.into());
+        let t = Topic { channel_id, type_name, type_hash, count: 0, sequence: 0, qos };
         self.topics.push((topic.to_string(), t));
         self.index.insert(topic.to_string(), self.topics.len() - 1);
         Ok(self.topics.len() - 1)
@@ -219,7 +233,7 @@ impl BagWriter {
                         message_count: t.count,
                         topic_metadata: TopicMetadata {
                             name: topic.clone(),
-                            offered_qos_profiles: serde_yaml::Value::Sequence(vec![]),
+                            offered_qos_profiles: t.qos.profiles(),
                             serialization_format: "cdr".into(),
                             type_name: t.type_name.clone(),
                             type_description_hash: t.type_hash.clone(),
