@@ -8,6 +8,7 @@
 pub mod align;
 pub mod app;
 pub mod bag;
+pub mod camera;
 pub mod consistency;
 pub mod eval;
 pub mod frame;
