@@ -27,6 +27,7 @@ pub mod queue;
 mod run;
 pub mod services;
 pub mod tf;
+pub mod tf_buffer;
 mod topics;
 
 pub use args::{resolve_params, ArgsError, LogLevel, MapQos, Names, NodeParams, ResolvedParams, RosArgs};
