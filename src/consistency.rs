@@ -174,13 +174,13 @@ pub fn estimate_scale(image: &[Point3<f64>], map: &[Point3<f64>]) -> Option<f64>
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::align::SplitMix64;
+    use crate::rng::SplitMix64;
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
     use proptest::prelude::*;
 
     fn cloud(seed: u64, n: usize) -> Vec<Point3<f64>> {
         let mut rng = SplitMix64(seed);
-        let mut u = || rng.next() as f64 / u64::MAX as f64;
+        let mut u = || rng.next_u64() as f64 / u64::MAX as f64;
         (0..n).map(|_| Point3::new(u() * 4.0 - 2.0, u() * 3.0 - 1.5, 1.0 + u() * 4.0)).collect()
     }
 

@@ -22,6 +22,7 @@ pub mod play;
 pub mod pnp;
 pub mod reject;
 pub mod report;
+pub mod rng;
 pub mod synth;
 pub mod validate;
 pub mod verify;

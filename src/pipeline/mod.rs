@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::params::Params;
-use crate::pnp::{solve_pnp_ransac_guided, Guidance, PnpError, PnpSolution};
+use crate::pnp::{solve_pnp_ransac, Guidance, PnpError, PnpParams, PnpSolution, Problem};
 use crate::reject::network::NetworkRejector;
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
 use crate::verify::{PriorVerifier, RenderMap};
@@ -275,8 +275,9 @@ impl Localizer {
             prior_space: geometry.prior_space,
             verification: verifier.as_ref().map(|v| self.params.verify.verification(v)),
         };
-        let pnp = self.params.pnp.for_camera(frame.intrinsics.fx);
-        let solved = solve_pnp_ransac_guided(&frame.intrinsics, &pixels, &points, &guidance, &pnp, self.params.seed);
+        let pnp = PnpParams { seed: self.params.seed, ..self.params.pnp.for_camera(frame.intrinsics.fx) };
+        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &pixels, points: &points };
+        let solved = solve_pnp_ransac(&problem, &guidance, &pnp);
         let with_scores = |r: &crate::reject::Rejection| -> Vec<Correspondence> {
             subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect()
         };

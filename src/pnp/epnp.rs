@@ -6,7 +6,7 @@
 //! (three linearisations, each Gauss–Newton polished), the pose from absolute orientation.
 //! Non-planar point sets only (a planar map region is reported as degenerate).
 
-use super::lm::{check_basic, finite_pairs, Cam};
+use super::ops::{check_basic, finite_pairs, Cam};
 use super::{MapToCamera, PnpError};
 use crate::geometry::Intrinsics;
 use nalgebra::{
@@ -229,7 +229,8 @@ pub fn epnp(
     points: &[Point3<f64>],
 ) -> Result<Isometry3<f64>, PnpError> {
     check_basic(intrinsics, pixels.len(), points.len())?;
-    let (px, pw, _) = finite_pairs(pixels, points);
+    let pairs = finite_pairs(pixels, points);
+    let (px, pw) = (pairs.pixels, pairs.points);
     let cam = Cam::new(intrinsics);
     let uv: Vec<Vector2<f64>> =
         px.iter().map(|p| Vector2::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy)).collect();

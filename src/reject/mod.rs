@@ -388,11 +388,8 @@ mod tests {
             .collect();
         let pose =
             Isometry3::from_parts(Translation3::new(1.0, 0.5, -0.2), UnitQuaternion::from_euler_angles(0.1, 0.7, -0.3));
-        let mut state = 12345u64;
-        let mut rnd = move || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut lcg = crate::rng::Lcg64(12345);
+        let mut rnd = move || lcg.next_f64();
         let mut truth = Vec::new();
         let correspondences = (0..n)
             .map(|i| {

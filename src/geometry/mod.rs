@@ -1,6 +1,10 @@
 //! Camera geometry: intrinsics, depth images, back-projection with a depth prior (eq. 2),
 //! surface normals and nearest neighbours. Pure math, no I/O.
 
+pub mod affine_fit;
+
+pub use affine_fit::{fit_increasing_affine, AffineFit, AffineFitParams, AffineMap};
+
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Matrix3, Point2, Point3, SymmetricEigen, Vector3};
 use serde::{Deserialize, Serialize};
