@@ -5,12 +5,12 @@
 //! The core (`geometry`, `consistency`, `reject`, `pnp`, `verify`, `pipeline`, `eval`) is pure and
 //! free of I/O; `msgs` and `bag` are the edges.
 
-pub mod align;
 pub mod app;
 pub mod bag;
 pub mod consistency;
 pub mod eval;
 pub mod frame;
+pub use geometry::align;
 pub mod geometry;
 pub mod limits;
 pub mod msgs;

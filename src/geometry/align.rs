@@ -6,7 +6,7 @@
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::PriorSpace;
+use super::PriorSpace;
 use crate::rng::SplitMix64;
 
 /// The prior's affine map to metric depth: in [`PriorSpace::Depth`] depth = `scale`·x + `shift`,
