@@ -61,9 +61,6 @@ pub fn replay(
 ) -> Result<ReplayReport> {
     let limits = localizer.params().limits.clone();
     let mut stream = FrameStream::open(input, topics, &limits)?;
-    if let Some(e) = localizer.setup_error() {
-        anyhow::bail!("method {}: {e}", localizer.params().method.name());
-    }
     if let Some(map) = stream.map.take() {
         localizer.set_map(&map);
     }

@@ -11,7 +11,20 @@
 //! buffers so a localizer can reuse them across frames.
 
 use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
 pub use crate::align::{estimate_scale_shift, ScaleShift, ScaleShiftParams};
+
+/// Which pairwise consistency a rejector or a graph measures.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PairMetric {
+    /// The paper's angle consistency, eq. (5)–(7), on clouds centred on their centroids.
+    #[default]
+    Angle,
+    /// Length consistency of the scale-and-shift-aligned (metric) image cloud, the paper's
+    /// distance ablation.
+    Distance,
+}
 
 /// A dense symmetric consistency matrix Θ (row-major, zero diagonal).
 #[derive(Clone, Debug, Default)]

@@ -12,7 +12,7 @@ use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
 use crate::consistency::{
-    angle_consistency, distance_consistency, ConsistencyMatrix, ScaleShiftParams,
+    angle_consistency, distance_consistency, ConsistencyMatrix, PairMetric, ScaleShiftParams,
 };
 use crate::frame::Frame;
 use crate::geometry::{DepthKind, FrameParts};
@@ -60,21 +60,10 @@ pub trait Rejector: Send {
     fn reject(&mut self, geometry: &FrameGeometry) -> Result<Rejection, RejectError>;
 }
 
-/// Which pairwise consistency the spectral rejector uses.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ConsistencyMetric {
-    /// The paper's angle consistency, eq. (5)–(7).
-    Angle,
-    /// Length consistency on the scale-and-shift-aligned image cloud.
-    #[default]
-    Distance,
-}
-
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SpectralParams {
-    pub metric: ConsistencyMetric,
+    pub metric: PairMetric,
     /// σ_d of eq. (7), on the difference of |cos|.
     pub sigma_d: f64,
     /// Distance metric tolerance: σ_abs + σ_rel·length, where σ_abs = `sigma_spread` × the
@@ -98,7 +87,7 @@ pub struct SpectralParams {
 impl Default for SpectralParams {
     fn default() -> Self {
         Self {
-            metric: ConsistencyMetric::Distance,
+            metric: PairMetric::Distance,
             sigma_d: 0.2,
             sigma_spread: 0.05,
             sigma_rel: 0.1,
@@ -225,7 +214,7 @@ impl Rejector for SpectralRejector {
         self.map.clear();
         self.map.extend(self.index.iter().map(|&i| geometry.map_points[i]));
         match self.params.metric {
-            ConsistencyMetric::Angle => {
+            PairMetric::Angle => {
                 // Outliers drag the centroids of eq. (5) apart, which blurs θ for inliers too;
                 // a second pass centres both clouds on the first pass's likely inliers.
                 angle_consistency(&self.image, &self.map, None, self.params.sigma_d, &mut self.theta);
@@ -235,7 +224,7 @@ impl Rejector for SpectralRejector {
                     angle_consistency(&self.image, &self.map, Some(&weights), self.params.sigma_d, &mut self.theta);
                 }
             }
-            ConsistencyMetric::Distance => distance_consistency(
+            PairMetric::Distance => distance_consistency(
                 &self.image,
                 &self.map,
                 self.params.sigma_spread * spread(&self.map),
@@ -333,7 +322,7 @@ mod tests {
 
     #[test]
     fn spectral_rejector_keeps_inliers() {
-        for metric in [ConsistencyMetric::Distance, ConsistencyMetric::Angle] {
+        for metric in [PairMetric::Distance, PairMetric::Angle] {
             let (f, truth) = frame(300, 90);
             let g = FrameGeometry::build(&f, DepthKind::Depth, Some(&ScaleShiftParams::default()));
             let mut r = SpectralRejector::new(SpectralParams { metric, ..SpectralParams::default() });
@@ -343,7 +332,7 @@ mod tests {
             let precision = top.iter().filter(|&&&i| truth[i]).count() as f64 / top.len() as f64;
             // The angle metric is the weaker one under 70 % outliers (their centroids are shared),
             // the aligned distance metric nearly exact: see the README's table.
-            let bar = if metric == ConsistencyMetric::Distance { 0.9 } else { 0.45 };
+            let bar = if metric == PairMetric::Distance { 0.9 } else { 0.45 };
             assert!(precision > bar, "{metric:?}: precision {precision}");
         }
     }

@@ -3,9 +3,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::graph::{GraphParams, ThetaKind};
+use super::graph::GraphParams;
 use super::SpectralParams;
-use crate::consistency::ScaleShiftParams;
+use crate::consistency::{PairMetric, ScaleShiftParams};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -23,7 +23,7 @@ pub struct NetworkParams {
     /// K, M, the θ kind and σ_d of the graphs (must match the training export).
     pub neighbours: usize,
     pub keypoints: usize,
-    pub theta: ThetaKind,
+    pub theta: PairMetric,
     pub sigma_d: f64,
     /// Align the prior's scale and shift before building features and graphs (the paper's
     /// scale alignment); `false` is the ablation: raw prior, no eq. (8) rescaling either.
