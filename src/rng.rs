@@ -7,7 +7,7 @@
 //! * [`SplitMix64`]: pair sampling in the scale/shift alignment and the consistency tests, and
 //!   the splitmix64 finaliser [`mix64`] as a hash (synthetic scenes, verifier cell subsampling).
 //! * [`Lcg64`]: Knuth's MMIX linear congruential generator, which spreads the candidate pairs of
-//!   the robust affine depth fit ([`crate::geometry::affine_fit`]) and makes test data.
+//!   the robust affine depth fit (`geometry::affine_fit`) and makes test data.
 //!
 //! None of them is cryptographic; all are statistically fine for sampling.
 

@@ -260,8 +260,8 @@ pub fn top_k(scores: &[f32], k: usize) -> Vec<usize> {
 mod tests {
     use super::*;
     use crate::frame::Correspondence;
-    use crate::geometry::DepthImage;
-    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    use crate::geometry::{DepthImage, Intrinsics};
+    use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion};
 
     /// A frame of a fronto-parallel-ish scene: inliers consistent with a pose and a prior of
     /// known scale/shift, outliers with random map points.
