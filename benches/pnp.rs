@@ -2,8 +2,10 @@
 //! inliers, and the non-minimal solver (EPnP + LM) on 100 inliers.
 
 use angle_i2p::geometry::Intrinsics;
+use angle_i2p::pnp::{
+    solve_pnp_nonminimal, solve_pnp_ransac, Guidance, PnpParams, PnpSolution, Problem, RefineOptions,
+};
 use angle_i2p::rng::SplitMix64;
-use angle_i2p::pnp::{solve_pnp_nonminimal, solve_pnp_ransac, Guidance, PnpParams, PnpSolution, Problem, RefineOptions};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 use std::hint::black_box;
@@ -94,9 +96,7 @@ fn bench(c: &mut Criterion) {
     // Fixed budget for comparison with PoseLib's LO-RANSAC (10k iterations on 400 points).
     let fixed = PnpParams { min_iterations: 10_000, max_iterations: 10_000, ..params.clone() };
     let p = problem(400, 400, 0.15);
-    group.bench_function("uniform_10k_iterations/400", |b| {
-        b.iter(|| black_box(solve(&k, &p, None, &fixed, 1)))
-    });
+    group.bench_function("uniform_10k_iterations/400", |b| b.iter(|| black_box(solve(&k, &p, None, &fixed, 1))));
     group.finish();
 
     let mut group = c.benchmark_group("pnp_nonminimal");

@@ -10,9 +10,9 @@
 //! Matrices are dense, row-major `n × n` `f32` with a zero diagonal, written into caller-owned
 //! buffers so a localizer can reuse them across frames.
 
+pub use crate::align::{estimate_scale_shift, ScaleShift, ScaleShiftParams};
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
-pub use crate::align::{estimate_scale_shift, ScaleShift, ScaleShiftParams};
 
 /// Which pairwise consistency a rejector or a graph measures.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]

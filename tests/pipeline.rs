@@ -205,7 +205,8 @@ fn learned_rejection_with_realistic_priors() {
 /// (no rejection), hard frames go on to the rejector; both are localized.
 #[test]
 fn easy_frames_end_on_the_fast_path_and_hard_ones_do_not() {
-    let mut localizer = Localizer::new(Params { method: Method::Consistency, ..Params::default() }).expect("a localizer");
+    let mut localizer =
+        Localizer::new(Params { method: Method::Consistency, ..Params::default() }).expect("a localizer");
     for (preset, fast) in [("easy+close", true), ("sift", true), ("hard", false)] {
         let scene = generate(&SynthConfig { frames: 3, seed: 9, ..SynthConfig::preset(preset).unwrap() });
         localizer.set_map(&scene.map);

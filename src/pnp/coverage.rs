@@ -82,7 +82,12 @@ impl Coverage {
         let cost = |cells: usize, inliers: usize, msac: f64| {
             -(cells as f64) - 0.5 * inliers as f64 / (n + 1.0) + 0.25 * msac / (n * data.th2 + 1.0)
         };
-        let plain = Hypothesis { pose: *pose, cost: cost(cells, self.inliers.len(), msac), inliers: self.inliers.len(), support: cells };
+        let plain = Hypothesis {
+            pose: *pose,
+            cost: cost(cells, self.inliers.len(), msac),
+            inliers: self.inliers.len(),
+            support: cells,
+        };
         if self.prior.is_none() || plain.cost >= bound.cost {
             return Some(plain);
         }

@@ -45,8 +45,8 @@ use crate::geometry::{Intrinsics, PriorSpace};
 
 pub use epnp::epnp;
 pub use lm::{pose_covariance, refine_pose, RefineOptions, RefineResult};
-pub use p3p::{p3p, P3pSolutions};
 pub use nonminimal::solve_pnp_nonminimal;
+pub use p3p::{p3p, P3pSolutions};
 pub use ransac::solve_pnp_ransac;
 
 /// Why a PnP solve produced no pose.

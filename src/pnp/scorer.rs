@@ -111,7 +111,8 @@ pub(crate) fn msac_bounded(
 ) -> Option<Hypothesis> {
     let mut acc = Acc { score: 0.0, inliers: 0, lambda: 0.0 };
     let n = data.len();
-    if !msac_range(data, pose, start..n, best, &sprt, &mut acc) || !msac_range(data, pose, 0..start, best, &sprt, &mut acc)
+    if !msac_range(data, pose, start..n, best, &sprt, &mut acc)
+        || !msac_range(data, pose, 0..start, best, &sprt, &mut acc)
     {
         return None;
     }

@@ -72,7 +72,12 @@ impl Termination {
     }
 
     /// Whether to stop before drawing sample `iterations + 1`; verifies the pool when due.
-    pub(crate) fn should_stop(&mut self, iterations: usize, pool: Option<&mut Pool>, evaluator: &mut Evaluator) -> bool {
+    pub(crate) fn should_stop(
+        &mut self,
+        iterations: usize,
+        pool: Option<&mut Pool>,
+        evaluator: &mut Evaluator,
+    ) -> bool {
         // Where plain RANSAC stops.
         let plain_done = iterations >= self.min_iterations && (iterations as f64) >= self.needed;
         let Some(p) = pool else { return plain_done };

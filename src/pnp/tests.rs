@@ -1,6 +1,6 @@
-use crate::rng::WyRand;
 use super::*;
 use crate::geometry::Intrinsics;
+use crate::rng::WyRand;
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 use proptest::prelude::*;
 
@@ -328,10 +328,7 @@ fn degenerate_and_invalid_inputs_are_errors() {
     let bad = Intrinsics { fx: f64::NAN, ..intr };
     assert_eq!(ransac(&bad, &px, &pw, None, &params, 0), Err(PnpError::InvalidIntrinsics));
     assert!(matches!(ransac(&intr, &px[..10], &pw, None, &params, 0), Err(PnpError::LengthMismatch { .. })));
-    assert!(matches!(
-        ransac(&intr, &px, &pw, Some(&[1.0; 3]), &params, 0),
-        Err(PnpError::LengthMismatch { .. })
-    ));
+    assert!(matches!(ransac(&intr, &px, &pw, Some(&[1.0; 3]), &params, 0), Err(PnpError::LengthMismatch { .. })));
     let p = PnpParams { threshold_px: f64::NAN, ..params.clone() };
     assert!(matches!(ransac(&intr, &px, &pw, None, &p, 0), Err(PnpError::InvalidParams(_))));
     // Pure outliers: no consensus (or, by chance, a tiny one), never a panic.
@@ -529,10 +526,9 @@ fn coverage_scoring_prefers_spread_support_over_a_displaced_patch() {
     px.extend(random_px);
     pw.extend(random_pw);
     let params = PnpParams { max_iterations: 20_000, ..PnpParams::default() };
-    let by_count = ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 0.0, ..params.clone() }, 1)
-        .expect("a pose");
-    let by_cells =
-        ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 32.0, ..params }, 1).expect("a pose");
+    let by_count =
+        ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 0.0, ..params.clone() }, 1).expect("a pose");
+    let by_cells = ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 32.0, ..params }, 1).expect("a pose");
     let (rot, trans) = pose_error(&by_cells.pose, &pose);
     assert!(rot < 0.01 && trans < 0.05, "coverage: {rot} rad, {trans} m off");
     assert!(by_cells.inliers[..12].iter().filter(|&&f| f).count() >= 11);

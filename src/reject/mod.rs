@@ -11,9 +11,7 @@ pub mod network_params;
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
-use crate::consistency::{
-    angle_consistency, distance_consistency, ConsistencyMatrix, PairMetric, ScaleShiftParams,
-};
+use crate::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix, PairMetric, ScaleShiftParams};
 use crate::frame::Frame;
 use crate::geometry::{DepthKind, FrameParts};
 

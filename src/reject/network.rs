@@ -10,12 +10,12 @@ use std::sync::OnceLock;
 
 use std::borrow::Cow;
 
-use ort::session::{Session, SessionInputValue};
-use ort::value::Tensor;
-pub use super::network_params::{KeypointRanking, NetworkParams};
 use super::inputs::{build_inputs, IndexedMap, NetworkInputs, TensorValues};
+pub use super::network_params::{KeypointRanking, NetworkParams};
 use super::{top_k, FrameGeometry, RejectError, Rejection, Rejector, SpectralParams, SpectralRejector};
 use crate::frame::MapCloud;
+use ort::session::{Session, SessionInputValue};
+use ort::value::Tensor;
 
 /// The library file this build expects (the `api-31` feature).
 pub const ONNXRUNTIME_LIBRARY: &str = "libonnxruntime.so.1.31.1";

@@ -89,4 +89,3 @@ impl NetworkParams {
         self.align_prior.then_some(align)
     }
 }
-
