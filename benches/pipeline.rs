@@ -98,11 +98,13 @@ fn bench(c: &mut Criterion) {
             (Method::AngleI2p, plain, "_no_verify"),
         ];
         for (method, verify, suffix) in runs {
-            let mut localizer = Localizer::new(Params { method, verify, ..Params::default() });
-            if let Some(e) = localizer.setup_error() {
-                eprintln!("skipping {}: {e}", method.name());
-                continue;
-            }
+            let mut localizer = match Localizer::new(Params { method, verify, ..Params::default() }) {
+                Ok(localizer) => localizer,
+                Err(e) => {
+                    eprintln!("skipping {}: {e}", method.name());
+                    continue;
+                }
+            };
             if let Some(map) = &map {
                 localizer.set_map(map);
             }

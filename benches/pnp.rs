@@ -2,22 +2,21 @@
 //! inliers, and the non-minimal solver (EPnP + LM) on 100 inliers.
 
 use angle_i2p::geometry::Intrinsics;
-use angle_i2p::pnp::{solve_pnp_nonminimal, solve_pnp_ransac, PnpParams, RefineOptions};
+use angle_i2p::pnp::{
+    solve_pnp_nonminimal, solve_pnp_ransac, Guidance, PnpParams, PnpSolution, Problem, RefineOptions,
+};
+use angle_i2p::rng::SplitMix64;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 use std::hint::black_box;
 use std::time::Duration;
 
-/// Small deterministic generator (splitmix64) so the bench needs no RNG crate API.
-struct Gen(u64);
+/// The crate's splitmix64, with the ranges the problems need.
+struct Gen(SplitMix64);
 
 impl Gen {
     fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        self.0.next_f64()
     }
     fn range(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * self.next()
@@ -32,7 +31,7 @@ fn intrinsics() -> Intrinsics {
     Intrinsics { fx: 600.0, fy: 600.0, cx: 320.0, cy: 240.0, width: 640, height: 480 }
 }
 
-struct Problem {
+struct Synthetic {
     pixels: Vec<Point2<f64>>,
     points: Vec<Point3<f64>>,
     scores: Vec<f32>,
@@ -40,8 +39,8 @@ struct Problem {
 
 /// `n` correspondences, a fraction `inlier_ratio` of them correct (1 px noise); scores rank
 /// inliers high with overlap (inliers U(0.4, 1), outliers U(0, 0.7)).
-fn problem(seed: u64, n: usize, inlier_ratio: f64) -> Problem {
-    let mut g = Gen(seed);
+fn problem(seed: u64, n: usize, inlier_ratio: f64) -> Synthetic {
+    let mut g = Gen(SplitMix64(seed));
     let k = intrinsics();
     let pose = Isometry3::from_parts(
         Translation3::new(3.0, -2.0, 1.0),
@@ -62,7 +61,14 @@ fn problem(seed: u64, n: usize, inlier_ratio: f64) -> Problem {
             scores.push(g.range(0.0, 0.7) as f32);
         }
     }
-    Problem { pixels, points, scores }
+    Synthetic { pixels, points, scores }
+}
+
+/// One robust solve of `p`, seeded.
+fn solve(k: &Intrinsics, p: &Synthetic, scores: Option<&[f32]>, params: &PnpParams, seed: u64) -> Option<PnpSolution> {
+    let problem = Problem { intrinsics: k, pixels: &p.pixels, points: &p.points };
+    let guidance = Guidance { scores, ..Guidance::default() };
+    solve_pnp_ransac(&problem, &guidance, &PnpParams { seed, ..params.clone() }).ok()
 }
 
 fn bench(c: &mut Criterion) {
@@ -76,23 +82,21 @@ fn bench(c: &mut Criterion) {
             let mut seed = 0;
             b.iter(|| {
                 seed += 1;
-                black_box(solve_pnp_ransac(&k, &p.pixels, &p.points, None, &params, seed).ok())
+                black_box(solve(&k, p, None, &params, seed))
             })
         });
         group.bench_with_input(BenchmarkId::new("prosac_15pct", n), &p, |b, p| {
             let mut seed = 0;
             b.iter(|| {
                 seed += 1;
-                black_box(solve_pnp_ransac(&k, &p.pixels, &p.points, Some(&p.scores), &params, seed).ok())
+                black_box(solve(&k, p, Some(&p.scores), &params, seed))
             })
         });
     }
     // Fixed budget for comparison with PoseLib's LO-RANSAC (10k iterations on 400 points).
     let fixed = PnpParams { min_iterations: 10_000, max_iterations: 10_000, ..params.clone() };
     let p = problem(400, 400, 0.15);
-    group.bench_function("uniform_10k_iterations/400", |b| {
-        b.iter(|| black_box(solve_pnp_ransac(&k, &p.pixels, &p.points, None, &fixed, 1).ok()))
-    });
+    group.bench_function("uniform_10k_iterations/400", |b| b.iter(|| black_box(solve(&k, &p, None, &fixed, 1))));
     group.finish();
 
     let mut group = c.benchmark_group("pnp_nonminimal");

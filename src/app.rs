@@ -61,9 +61,6 @@ pub fn replay(
 ) -> Result<ReplayReport> {
     let limits = localizer.params().limits.clone();
     let mut stream = FrameStream::open(input, topics, &limits)?;
-    if let Some(e) = localizer.setup_error() {
-        anyhow::bail!("method {}: {e}", localizer.params().method.name());
-    }
     if let Some(map) = stream.map.take() {
         localizer.set_map(&map);
     }
@@ -342,7 +339,7 @@ pub struct ExportReport {
 /// (N×6: u, v, x, y, z, score).
 pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) -> Result<ExportReport> {
     use crate::npy;
-    use crate::reject::inputs::{build_inputs, IndexedMap};
+    use crate::reject::inputs::{build_inputs, IndexedMap, TensorValues};
     use crate::reject::{FrameGeometry, SpectralRejector};
 
     let mut stream = FrameStream::open(input, &params.topics, &params.limits)?;
@@ -383,10 +380,7 @@ pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) 
             .collect();
         let dir = out.join(frame.stamp.to_string());
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        let (n, g) = (geometry.len(), &inputs.graphs);
-        let m = g.global_index.len();
-        let index = |v: &[u32]| v.iter().map(|&i| i as i64).collect::<Vec<i64>>();
-        let flat: Vec<f32> = inputs.features.iter().flatten().copied().collect();
+        let n = geometry.len();
         let corr: Vec<f32> = frame
             .correspondences
             .iter()
@@ -396,18 +390,16 @@ pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) 
             .collect();
         let write =
             |name: &str, r: std::io::Result<()>| r.with_context(|| format!("writing {}/{name}.npy", dir.display()));
-        write("features", npy::write(&dir.join("features.npy"), &flat, &[n, flat.len() / n.max(1)]))?;
-        write(
-            "local_index",
-            npy::write(&dir.join("local_index.npy"), &index(&g.local_index), &[g.nodes, g.neighbours]),
-        )?;
-        write(
-            "local_theta",
-            npy::write(&dir.join("local_theta.npy"), &g.local_theta, &[g.nodes, g.neighbours, g.neighbours]),
-        )?;
-        write("global_index", npy::write(&dir.join("global_index.npy"), &index(&g.global_index), &[m]))?;
-        write("global_theta", npy::write(&dir.join("global_theta.npy"), &g.global_theta, &[m, m]))?;
-        write("cross_theta", npy::write(&dir.join("cross_theta.npy"), &g.cross_theta, &[n, m]))?;
+        // The network's inputs, as the ONNX run gets them (`matcher_score` is also column 6 of
+        // `correspondences`).
+        for t in inputs.tensors() {
+            let path = dir.join(format!("{}.npy", t.name));
+            let written = match &t.values {
+                TensorValues::F32(v) => npy::write(&path, v, &t.shape),
+                TensorValues::I64(v) => npy::write(&path, v, &t.shape),
+            };
+            write(t.name, written)?;
+        }
         write("spectral", npy::write(&dir.join("spectral.npy"), &inputs.spectral_scores, &[n]))?;
         write("labels", npy::write(&dir.join("labels.npy"), &labels, &[n]))?;
         write("correspondences", npy::write(&dir.join("correspondences.npy"), &corr, &[n, 6]))?;

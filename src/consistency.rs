@@ -10,8 +10,21 @@
 //! Matrices are dense, row-major `n × n` `f32` with a zero diagonal, written into caller-owned
 //! buffers so a localizer can reuse them across frames.
 
-use nalgebra::{Point3, Vector3};
 pub use crate::align::{estimate_scale_shift, ScaleShift, ScaleShiftParams};
+use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Which pairwise consistency a rejector or a graph measures.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PairMetric {
+    /// The paper's angle consistency, eq. (5)–(7), on clouds centred on their centroids.
+    #[default]
+    Angle,
+    /// Length consistency of the scale-and-shift-aligned (metric) image cloud, the paper's
+    /// distance ablation.
+    Distance,
+}
 
 /// A dense symmetric consistency matrix Θ (row-major, zero diagonal).
 #[derive(Clone, Debug, Default)]
@@ -174,13 +187,13 @@ pub fn estimate_scale(image: &[Point3<f64>], map: &[Point3<f64>]) -> Option<f64>
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::align::SplitMix64;
+    use crate::rng::SplitMix64;
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
     use proptest::prelude::*;
 
     fn cloud(seed: u64, n: usize) -> Vec<Point3<f64>> {
         let mut rng = SplitMix64(seed);
-        let mut u = || rng.next() as f64 / u64::MAX as f64;
+        let mut u = || rng.next_u64() as f64 / u64::MAX as f64;
         (0..n).map(|_| Point3::new(u() * 4.0 - 2.0, u() * 3.0 - 1.5, 1.0 + u() * 4.0)).collect()
     }
 

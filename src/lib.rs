@@ -5,13 +5,13 @@
 //! The core (`geometry`, `consistency`, `reject`, `pnp`, `verify`, `pipeline`, `eval`) is pure and
 //! free of I/O; `msgs` and `bag` are the edges.
 
-pub mod align;
 pub mod app;
 pub mod bag;
 pub mod camera;
 pub mod consistency;
 pub mod eval;
 pub mod frame;
+pub use geometry::align;
 pub mod geometry;
 pub mod limits;
 pub mod msgs;
@@ -23,6 +23,7 @@ pub mod play;
 pub mod pnp;
 pub mod reject;
 pub mod report;
+pub mod rng;
 pub mod synth;
 pub mod validate;
 pub mod verify;

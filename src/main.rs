@@ -186,7 +186,8 @@ fn run(cli: Cli) -> Result<()> {
                 params.method = m;
             }
             let topics = params.topics.clone();
-            let mut localizer = Localizer::new(params);
+            let method = params.method;
+            let mut localizer = Localizer::new(params).map_err(|e| anyhow::anyhow!("method {}: {e}", method.name()))?;
             let bar = ProgressBar::new(0).with_style(
                 ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} frames, {per_sec} {msg}")
                     .unwrap_or_else(|_| ProgressStyle::default_bar())

@@ -7,8 +7,9 @@
 use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::{DepthImage, DepthKind, Intrinsics, PriorSpace};
+use crate::geometry::{fit_increasing_affine, AffineFitParams, DepthImage, DepthKind, Intrinsics, PriorSpace};
 use crate::pnp::{Agreement, PoseVerifier, Verification};
+use crate::rng::splitmix64_hash;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -96,7 +97,7 @@ impl RenderMap {
     pub fn new(points: &[Point3<f32>], max_points: usize) -> Self {
         let keep = (max_points as f64 / points.len().max(1) as f64).min(1.0);
         let threshold = (keep * u32::MAX as f64) as u64;
-        let kept = |i: usize| keep >= 1.0 || (splitmix(i as u64) >> 32) < threshold;
+        let kept = |i: usize| keep >= 1.0 || (splitmix64_hash(i as u64) >> 32) < threshold;
         let mut map = Self::default();
         for (_, p) in points.iter().enumerate().filter(|&(i, p)| kept(i) && p.iter().all(|v| v.is_finite())) {
             map.x.push(p.x);
@@ -113,14 +114,6 @@ impl RenderMap {
     pub fn is_empty(&self) -> bool {
         self.x.is_empty()
     }
-}
-
-/// SplitMix64's finaliser: a well-mixed hash of an integer.
-fn splitmix(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    x ^ (x >> 31)
 }
 
 /// Render cells a verifier allocates at most (a 32 768-px-wide image in 32 px cells, squared).
@@ -258,35 +251,22 @@ impl PoseVerifier for PriorVerifier<'_> {
     }
 }
 
-/// Candidate affine maps tried by [`best_affine_count`].
-const AFFINE_CANDIDATES: usize = 64;
+/// How the verifier fits the prior to the rendered depths: 64 candidate maps through two cells
+/// each, spread over the cells, counted on every cell.
+const CELL_FIT: AffineFitParams<f32> = AffineFitParams {
+    candidates: 64,
+    exhaustive_when_few: false,
+    seed: 0x2545_F491_4F6C_DD1D,
+    adaptive_after: None,
+    max_counted: usize::MAX,
+    min_gap_abs: 0.0,
+    min_gap_rel: 1e-6,
+};
 
 /// The most (prior, depth) pairs that one increasing affine map `z ≈ a·d + b` puts within
-/// `tolerance`·z, over candidate maps through two pairs each (spread deterministically).
+/// `tolerance`·z ([`fit_increasing_affine`]).
 fn best_affine_count(pairs: &[(f32, f32)], tolerance: f32) -> usize {
-    let n = pairs.len();
-    if n < 2 {
-        return 0;
-    }
-    let mut best = 0;
-    let mut state = 0x2545_F491_4F6C_DD1Du64;
-    for c in 0..AFFINE_CANDIDATES {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        let i = c * n / AFFINE_CANDIDATES;
-        let j = (i + 1 + (state >> 33) as usize % (n - 1)) % n;
-        let ((di, zi), (dj, zj)) = (pairs[i], pairs[j]);
-        if (di - dj).abs() < 1e-6 * di.abs().max(dj.abs()) {
-            continue;
-        }
-        let a = (zi - zj) / (di - dj);
-        if !(a > 0.0) {
-            continue;
-        }
-        let b = zi - a * di;
-        let count = pairs.iter().filter(|&&(d, z)| (z - (a * d + b)).abs() < tolerance * z).count();
-        best = best.max(count);
-    }
-    best
+    fit_increasing_affine(pairs, tolerance, &CELL_FIT).map_or(0, |fit| fit.agreeing)
 }
 
 #[cfg(test)]

@@ -377,10 +377,7 @@ proptest! {
             let mut params = angle_i2p::params::Params { method, ..Default::default() };
             params.cascade.enabled = fast_path;
             params.pnp.max_iterations = 2000;
-            let mut localizer = Localizer::new(params);
-            if localizer.setup_error().is_some() {
-                continue;
-            }
+            let Ok(mut localizer) = Localizer::new(params) else { continue };
             localizer.set_map(&map);
             let loc = localizer.process(&frame);
             prop_assert!(loc.pose.is_some() || loc.failure.is_some());

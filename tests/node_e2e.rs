@@ -153,7 +153,7 @@ fn play_command_of(bag: &Path) -> Command {
 /// The localizer the node runs, with the bag's map set as the node sets it when the map arrives
 /// (the network's inputs use the map's normals).
 fn localizer_for(input: &BagFrames) -> Localizer {
-    let mut localizer = Localizer::new(Params::default());
+    let mut localizer = Localizer::new(Params::default()).expect("a localizer");
     if let Some(map) = &input.map {
         localizer.set_map(map);
     }

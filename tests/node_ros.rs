@@ -45,7 +45,7 @@ fn diag_of(d: &msgs::DiagnosticArray, fq_name: &str, key: &str) -> u64 {
 fn ransac_frame() -> (Frame, angle_i2p::frame::MapCloud, nalgebra::Isometry3<f64>) {
     let input = read_frames(manifest().join("bags/synth-hard"), &TopicMap::default()).expect("read bag");
     let map = input.map.clone().expect("map");
-    let mut localizer = Localizer::new(Params { method: Method::Ransac, ..Params::default() });
+    let mut localizer = Localizer::new(Params { method: Method::Ransac, ..Params::default() }).expect("a localizer");
     localizer.set_map(&map);
     let (frame, pose) = input
         .frames

@@ -23,10 +23,7 @@ fn localize_all_with_map(frames: &[Frame], map: Option<&MapCloud>, method: Metho
 
 fn localize_params(frames: &[Frame], map: Option<&MapCloud>, params: Params) -> (Vec<FrameMetrics>, f64) {
     let method = params.method;
-    let mut localizer = Localizer::new(params);
-    if let Some(e) = localizer.setup_error() {
-        panic!("{}: {e}", method.name());
-    }
+    let mut localizer = Localizer::new(params).unwrap_or_else(|e| panic!("{}: {e}", method.name()));
     if let Some(map) = map {
         localizer.set_map(map);
     }
@@ -71,7 +68,7 @@ fn ransac_localizes_synthetic_sift_frames_accurately() {
 fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
     let scene = generate(&SynthConfig { frames: 2, seed: 5, ..SynthConfig::preset("sift").unwrap() });
     let good = scene.frames[1].clone();
-    let mut localizer = Localizer::new(Params::default());
+    let mut localizer = Localizer::new(Params::default()).expect("a localizer");
 
     let mut empty = scene.frames[0].clone();
     empty.correspondences.clear();
@@ -97,7 +94,7 @@ fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
     assert!(loc.fast_path && loc.pose.is_some() && loc.prior_quality.is_none(), "{:?}", loc.failure);
     let mut full_path_only = Params::default();
     full_path_only.cascade.enabled = false;
-    let loc = Localizer::new(full_path_only).process(&no_prior);
+    let loc = Localizer::new(full_path_only).expect("a localizer").process(&no_prior);
     assert!(matches!(loc.failure, Some(Failure::Rejection(_))), "{:?}", loc.failure);
     assert!(loc.failure.unwrap().to_string().contains("depth prior"));
 
@@ -111,10 +108,7 @@ fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
         for method in [Method::Consistency, Method::AngleI2p] {
             let mut params = Params { method, ..Params::default() };
             params.cascade.enabled = false;
-            let mut full = Localizer::new(params);
-            if full.setup_error().is_some() {
-                continue;
-            }
+            let Ok(mut full) = Localizer::new(params) else { continue };
             let loc = full.process(&blank);
             assert!(loc.failure.is_some() || loc.pose.is_some(), "{value}: {:?}", loc.failure);
         }
@@ -211,7 +205,8 @@ fn learned_rejection_with_realistic_priors() {
 /// (no rejection), hard frames go on to the rejector; both are localized.
 #[test]
 fn easy_frames_end_on_the_fast_path_and_hard_ones_do_not() {
-    let mut localizer = Localizer::new(Params { method: Method::Consistency, ..Params::default() });
+    let mut localizer =
+        Localizer::new(Params { method: Method::Consistency, ..Params::default() }).expect("a localizer");
     for (preset, fast) in [("easy+close", true), ("sift", true), ("hard", false)] {
         let scene = generate(&SynthConfig { frames: 3, seed: 9, ..SynthConfig::preset(preset).unwrap() });
         localizer.set_map(&scene.map);
@@ -236,7 +231,7 @@ fn replay_reports_each_frames_registration_as_it_goes() {
     let out = dir.path().join("out");
     let bag = common::manifest().join("bags/synth-extreme");
     let params = Params { method: Method::Ransac, ..Params::default() };
-    let mut localizer = Localizer::new(params.clone());
+    let mut localizer = Localizer::new(params.clone()).expect("a localizer");
     let (mut seen, mut registered) = (0usize, 0usize);
     app::replay(&bag, &out, &mut localizer, &params.topics, |p| {
         assert_eq!(p.index, seen);

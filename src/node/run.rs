@@ -455,7 +455,7 @@ fn debug_image(frame: &Frame, loc: &Localization) -> Result<msgs::Image> {
 
 /// Runs `localizer` on `frame` on the blocking pool; a panic becomes a counted failure and a
 /// fresh localizer.
-async fn localize(localizer: Localizer, frame: Frame) -> (Localizer, Frame, Option<Localization>) {
+async fn localize(localizer: Localizer, frame: Frame) -> (Option<Localizer>, Frame, Option<Localization>) {
     let params = localizer.params().clone();
     let handle = tokio::task::spawn_blocking(move || {
         let mut localizer = localizer;
@@ -463,9 +463,9 @@ async fn localize(localizer: Localizer, frame: Frame) -> (Localizer, Frame, Opti
         (localizer, frame, out.ok())
     });
     match handle.await {
-        Ok(r) => r,
+        Ok((localizer, frame, out)) => (Some(localizer), frame, out),
         // The task itself died (cannot happen with catch_unwind, but never stop the worker).
-        Err(_) => (Localizer::new(params.clone()), dummy_frame(), None),
+        Err(_) => (Localizer::new(params.clone()).ok(), dummy_frame(), None),
     }
 }
 
@@ -496,6 +496,10 @@ async fn worker(
         }
         let stamp = job.frame.stamp;
         let (back, frame, loc) = localize(localizer, job.frame).await;
+        let Some(back) = back else {
+            warn(format!("frame {stamp}: the localizer was lost and cannot be set up again; the worker stops"));
+            return;
+        };
         localizer = back;
         let Some(mut loc) = loc else {
             warn(format!("frame {stamp}: the localizer panicked; continuing with a fresh one"));
@@ -503,7 +507,10 @@ async fn worker(
             s.frames_failed += 1;
             s.error("panic", format!("frame {stamp}: localizer panicked"));
             drop(s);
-            localizer = Localizer::new(localizer.params().clone());
+            match Localizer::new(localizer.params().clone()) {
+                Ok(fresh) => localizer = fresh,
+                Err(e) => warn(format!("frame {stamp}: no fresh localizer ({e}); keeping the old one")),
+            }
             if let Some(m) = &map {
                 localizer.set_map(m);
             }
@@ -802,10 +809,8 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
     )?);
     drop(tx);
 
-    let localizer = Localizer::new(params.clone());
-    if let Some(e) = localizer.setup_error() {
-        anyhow::bail!("method {}: {e}", params.method.name());
-    }
+    let localizer =
+        Localizer::new(params.clone()).map_err(|e| anyhow::anyhow!("method {}: {e}", params.method.name()))?;
     let queue = Arc::new(DropOldestQueue::new(np.queue_depth));
     let worker_task = tokio::spawn(worker(queue.clone(), localizer, outputs, gate.clone()));
 

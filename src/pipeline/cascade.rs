@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::frame::Frame;
-use crate::pnp::{solve_pnp_ransac_guided, Guidance, PnpParams, PnpSolution};
+use crate::pnp::{solve_pnp_ransac, Guidance, PnpParams, PnpSolution, Problem};
 
 /// When the budgeted LO-RANSAC settles a frame on its own.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -86,12 +86,12 @@ impl CascadeParams {
             max_iterations: iterations,
             min_iterations: pnp.min_iterations.min(iterations),
             coverage_cell_px: 0.0,
+            seed,
             ..pnp.clone()
         };
         let guidance = Guidance { scores: Some(&matches.scores), ..Guidance::default() };
-        let solution =
-            solve_pnp_ransac_guided(&frame.intrinsics, &matches.pixels, &matches.points, &guidance, &params, seed)
-                .map_err(|_| FastPathCheck::default())?;
+        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &matches.pixels, points: &matches.points };
+        let solution = solve_pnp_ransac(&problem, &guidance, &params).map_err(|_| FastPathCheck::default())?;
         let cell_px = frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64;
         let pixels = &matches.pixels;
         let all = cells_covered(pixels.iter(), cell_px);

@@ -9,8 +9,8 @@ use serde::{Deserialize, Serialize};
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::params::Params;
-use crate::pnp::{solve_pnp_ransac_guided, Guidance, PnpError, PnpSolution};
-use crate::reject::network::NetworkRejector;
+use crate::pnp::{solve_pnp_ransac, Guidance, PnpError, PnpParams, PnpSolution, Problem};
+use crate::reject::network::{NetworkError, NetworkRejector};
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
 use crate::verify::{PriorVerifier, RenderMap};
 
@@ -118,36 +118,32 @@ pub struct Localization {
     pub failure: Option<Failure>,
 }
 
+/// Why a localizer cannot be set up for its method.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum SetupError {
+    /// The learned rejector's ONNX Runtime or model.
+    #[error(transparent)]
+    Network(#[from] NetworkError),
+}
+
 /// Localizes frames; holds the reusable per-frame buffers.
 pub struct Localizer {
     params: Params,
     rejector: Option<Box<dyn Rejector>>,
-    /// Why the method's rejector could not be set up (every frame then fails with it).
-    setup_error: Option<String>,
     /// The map subsample that PnP's hypotheses are rendered from for verification.
     render_map: RenderMap,
 }
 
 impl Localizer {
-    pub fn new(params: Params) -> Self {
-        let mut setup_error = None;
+    /// A localizer for `params.method`; an error when its rejector cannot run (e.g. ONNX Runtime
+    /// or the model is missing).
+    pub fn new(params: Params) -> Result<Self, SetupError> {
         let rejector: Option<Box<dyn Rejector>> = match params.method {
             Method::Ransac => None,
             Method::Consistency => Some(Box::new(SpectralRejector::new(params.spectral.clone()))),
-            Method::AngleI2p => match NetworkRejector::new(params.network.clone(), params.spectral.clone()) {
-                Ok(r) => Some(Box::new(r)),
-                Err(e) => {
-                    setup_error = Some(e.to_string());
-                    None
-                }
-            },
+            Method::AngleI2p => Some(Box::new(NetworkRejector::new(params.network.clone(), params.spectral.clone())?)),
         };
-        Self { params, rejector, setup_error, render_map: RenderMap::default() }
-    }
-
-    /// Why the configured method cannot run (e.g. ONNX Runtime or the model is missing).
-    pub fn setup_error(&self) -> Option<&str> {
-        self.setup_error.as_deref()
+        Ok(Self { params, rejector, render_map: RenderMap::default() })
     }
 
     /// The map frames are localized against (rejectors that use its geometry keep it).
@@ -185,9 +181,7 @@ impl Localizer {
             timings: StageTimings::default(),
             failure: None,
         };
-        if let Some(e) = &self.setup_error {
-            out.failure = Some(Failure::Rejection(RejectError::Failed(e.clone())));
-        } else if let Err(failure) = self.validate(frame) {
+        if let Err(failure) = self.validate(frame) {
             out.failure = Some(failure);
         } else if !self.fast_path(frame, &mut out) {
             self.full_path(frame, &mut out);
@@ -275,8 +269,9 @@ impl Localizer {
             prior_space: geometry.prior_space,
             verification: verifier.as_ref().map(|v| self.params.verify.verification(v)),
         };
-        let pnp = self.params.pnp.for_camera(frame.intrinsics.fx);
-        let solved = solve_pnp_ransac_guided(&frame.intrinsics, &pixels, &points, &guidance, &pnp, self.params.seed);
+        let pnp = PnpParams { seed: self.params.seed, ..self.params.pnp.for_camera(frame.intrinsics.fx) };
+        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &pixels, points: &points };
+        let solved = solve_pnp_ransac(&problem, &guidance, &pnp);
         let with_scores = |r: &crate::reject::Rejection| -> Vec<Correspondence> {
             subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect()
         };

@@ -104,11 +104,8 @@ mod tests {
         let k = Intrinsics { fx: 615.0, fy: 615.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
         let pose =
             Isometry3::from_parts(Translation3::new(0.1, -0.2, 0.3), UnitQuaternion::from_euler_angles(0.1, 0.2, -0.1));
-        let mut state = seed;
-        let mut uniform = move || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut lcg = crate::rng::Lcg64(seed);
+        let mut uniform = move || lcg.next_f64();
         let mut corrs = Vec::new();
         for i in 0..200 {
             let pixel = Point2::new(20.0 + 600.0 * uniform(), 20.0 + 440.0 * uniform());

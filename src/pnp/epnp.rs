@@ -6,7 +6,7 @@
 //! (three linearisations, each Gauss–Newton polished), the pose from absolute orientation.
 //! Non-planar point sets only (a planar map region is reported as degenerate).
 
-use super::lm::{check_basic, finite_pairs, Cam};
+use super::ops::{check_basic, finite_pairs, Cam};
 use super::{MapToCamera, PnpError};
 use crate::geometry::Intrinsics;
 use nalgebra::{
@@ -36,13 +36,65 @@ pub(crate) fn absolute_orientation(from: &[Vector3<f64>], to: &[Vector3<f64>]) -
     pose.is_finite().then_some(pose)
 }
 
+/// EPnP's four control points in the map: the centroid and the principal axes scaled by the RMS
+/// extent, with each map point's barycentric coordinates in them.
+struct ControlPoints {
+    world: [Vector3<f64>; 4],
+    alphas: Vec<Vector4<f64>>,
+}
+
 /// EPnP on normalised image coordinates `uv` (`K⁻¹·pixel`, z = 1) and map points `pw`.
 pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Result<MapToCamera, PnpError> {
     let n = uv.len();
     if n < 4 || pw.len() != n {
         return Err(PnpError::TooFewPoints { usable: n.min(pw.len()), required: 4 });
     }
-    // Control points: centroid + principal axes scaled by the RMS extent.
+    let control = control_points(pw)?;
+    let v = null_space(&control.alphas, uv)?;
+    let (q, rho) = pair_distances(&v, &control.world);
+    let mut best: Option<(f64, MapToCamera)> = None;
+    let mut pc = vec![Vector3::zeros(); n];
+    for init in beta_inits(&q, &rho) {
+        let beta = gauss_newton_betas(init, &q, &rho);
+        let mut cc = [Vector3::zeros(); 4];
+        for (j, c) in cc.iter_mut().enumerate() {
+            for k in 0..4 {
+                *c += Vector3::new(v[k][3 * j], v[k][3 * j + 1], v[k][3 * j + 2]) * beta[k];
+            }
+        }
+        for (p, a) in pc.iter_mut().zip(&control.alphas) {
+            *p = cc[0] * a[0] + cc[1] * a[1] + cc[2] * a[2] + cc[3] * a[3];
+        }
+        if pc.iter().map(|p| p.z).sum::<f64>() < 0.0 {
+            pc.iter_mut().for_each(|p| *p = -*p);
+        }
+        let Some(pose) = absolute_orientation(pw, &pc) else { continue };
+        let err = normalized_error(&pose, pw, uv);
+        if err.is_finite() && best.as_ref().is_none_or(|(e, _)| err < *e) {
+            best = Some((err, pose));
+        }
+    }
+    best.map(|(_, p)| p).ok_or(PnpError::Degenerate("EPnP found no valid pose"))
+}
+
+/// Σ squared error in normalised image coordinates (1e6 per point behind the camera).
+fn normalized_error(pose: &MapToCamera, pw: &[Vector3<f64>], uv: &[Vector2<f64>]) -> f64 {
+    pw.iter()
+        .zip(uv)
+        .map(|(p, m)| {
+            let x = pose.transform(p);
+            if x.z > 0.0 {
+                (x.x / x.z - m.x).powi(2) + (x.y / x.z - m.y).powi(2)
+            } else {
+                1e6
+            }
+        })
+        .sum()
+}
+
+/// Control points: centroid + principal axes scaled by the RMS extent.
+fn control_points(pw: &[Vector3<f64>]) -> Result<ControlPoints, PnpError> {
+    let n = pw.len();
     let c0 = pw.iter().sum::<Vector3<f64>>() / n as f64;
     let mut cov = Matrix3::zeros();
     for p in pw {
@@ -74,7 +126,12 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
             Vector4::new(1.0 - a1 - a2 - a3, a1, a2, a3)
         })
         .collect();
+    Ok(ControlPoints { world: cw, alphas })
+}
 
+/// The four eigenvectors of MᵀM with the smallest eigenvalues (the camera control points lie
+/// in their span).
+fn null_space(alphas: &[Vector4<f64>], uv: &[Vector2<f64>]) -> Result<[V12; 4], PnpError> {
     let mut mtm = M12::zeros();
     for (a, m) in alphas.iter().zip(uv) {
         let mut r1 = V12::zeros();
@@ -94,10 +151,14 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
         SymmetricEigen::try_new(mtm, f64::EPSILON, 1000).ok_or(PnpError::Degenerate("eigen decomposition failed"))?;
     let mut order: [usize; 12] = std::array::from_fn(|i| i);
     order.sort_by(|&a, &b| eig12.eigenvalues[a].total_cmp(&eig12.eigenvalues[b]));
-    let v: [V12; 4] = std::array::from_fn(|k| eig12.eigenvectors.column(order[k]).into_owned());
+    Ok(std::array::from_fn(|k| eig12.eigenvectors.column(order[k]).into_owned()))
+}
 
-    // For each control-point pair: Q[k][l] = dv_k · dv_l, with ‖Σ β_k dv_k‖² = ρ.
-    const PAIRS: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
+/// The control-point pairs of EPnP's distance constraints.
+const PAIRS: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
+
+/// For each control-point pair: Q[k][l] = dv_k · dv_l, with ‖Σ β_k dv_k‖² = ρ.
+fn pair_distances(v: &[V12; 4], cw: &[Vector3<f64>; 4]) -> ([Matrix4<f64>; 6], [f64; 6]) {
     let mut q = [Matrix4::zeros(); 6];
     let mut rho = [0.0; 6];
     for (p, &(a, b)) in PAIRS.iter().enumerate() {
@@ -115,8 +176,12 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
         }
         rho[p] = (cw[a] - cw[b]).norm_squared();
     }
+    (q, rho)
+}
 
-    // Linearised β products: solve L·x = ρ over the chosen products (k, l) by least squares.
+/// Initial β from the linearised products (approximations N = 1, 2, 3 of the paper).
+fn beta_inits(q: &[Matrix4<f64>; 6], rho: &[f64; 6]) -> Vec<Vector4<f64>> {
+    // Solve L·x = ρ over the chosen products (k, l) by least squares.
     let solve_products = |prods: &[(usize, usize)]| -> Option<Vec<f64>> {
         let m = prods.len();
         let mut l = nalgebra::DMatrix::zeros(6, m);
@@ -125,7 +190,7 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
                 l[(p, c)] = if k == ll { q[p][(k, k)] } else { 2.0 * q[p][(k, ll)] };
             }
         }
-        let r = nalgebra::DVector::from_row_slice(&rho);
+        let r = nalgebra::DVector::from_row_slice(rho);
         let x = l.try_svd(true, true, f64::EPSILON, 200)?.solve(&r, 1e-12).ok()?;
         Some(x.iter().copied().collect())
     };
@@ -155,41 +220,7 @@ pub(crate) fn epnp_normalized(uv: &[Vector2<f64>], pw: &[Vector3<f64>]) -> Resul
         let b3 = if b1 != 0.0 { x[3] / b1 } else { 0.0 };
         inits.push(Vector4::new(b1, b2, b3, 0.0));
     }
-
-    let mut best: Option<(f64, MapToCamera)> = None;
-    let mut pc = vec![Vector3::zeros(); n];
-    for init in inits {
-        let beta = gauss_newton_betas(init, &q, &rho);
-        let mut cc = [Vector3::zeros(); 4];
-        for (j, c) in cc.iter_mut().enumerate() {
-            for k in 0..4 {
-                *c += Vector3::new(v[k][3 * j], v[k][3 * j + 1], v[k][3 * j + 2]) * beta[k];
-            }
-        }
-        for (p, a) in pc.iter_mut().zip(&alphas) {
-            *p = cc[0] * a[0] + cc[1] * a[1] + cc[2] * a[2] + cc[3] * a[3];
-        }
-        if pc.iter().map(|p| p.z).sum::<f64>() < 0.0 {
-            pc.iter_mut().for_each(|p| *p = -*p);
-        }
-        let Some(pose) = absolute_orientation(pw, &pc) else { continue };
-        let err: f64 = pw
-            .iter()
-            .zip(uv)
-            .map(|(p, m)| {
-                let x = pose.transform(p);
-                if x.z > 0.0 {
-                    (x.x / x.z - m.x).powi(2) + (x.y / x.z - m.y).powi(2)
-                } else {
-                    1e6
-                }
-            })
-            .sum();
-        if err.is_finite() && best.as_ref().is_none_or(|(e, _)| err < *e) {
-            best = Some((err, pose));
-        }
-    }
-    best.map(|(_, p)| p).ok_or(PnpError::Degenerate("EPnP found no valid pose"))
+    inits
 }
 
 fn gauss_newton_betas(mut b: Vector4<f64>, q: &[Matrix4<f64>; 6], rho: &[f64; 6]) -> Vector4<f64> {
@@ -229,7 +260,8 @@ pub fn epnp(
     points: &[Point3<f64>],
 ) -> Result<Isometry3<f64>, PnpError> {
     check_basic(intrinsics, pixels.len(), points.len())?;
-    let (px, pw, _) = finite_pairs(pixels, points);
+    let pairs = finite_pairs(pixels, points);
+    let (px, pw) = (pairs.pixels, pairs.points);
     let cam = Cam::new(intrinsics);
     let uv: Vec<Vector2<f64>> =
         px.iter().map(|p| Vector2::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy)).collect();

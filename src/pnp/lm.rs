@@ -4,40 +4,10 @@
 //! The update is a left perturbation of the map-to-camera transform:
 //! `x_cam' = exp([ω]×)·x_cam + δt`, so `∂x_cam/∂ω = −[x_cam]×`, `∂x_cam/∂δt = I`.
 
+use super::ops::{check_basic, checked_pairs, finite_pairs, reproj_err2, Cam, MIN_DEPTH};
 use super::{MapToCamera, PnpError, RobustLoss};
 use crate::geometry::Intrinsics;
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, SymmetricEigen, Vector2, Vector3, Vector6};
-
-/// Pinhole parameters in the form the inner loops use.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Cam {
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-}
-
-impl Cam {
-    pub(crate) fn new(k: &Intrinsics) -> Self {
-        Self { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy }
-    }
-}
-
-/// Smallest camera depth that counts as "in front".
-pub(crate) const MIN_DEPTH: f64 = 1e-9;
-
-/// Squared pixel reprojection error, `+∞` behind the camera.
-#[inline(always)]
-pub(crate) fn reproj_err2(cam: &Cam, pose: &MapToCamera, pw: &Vector3<f64>, px: &Vector2<f64>) -> f64 {
-    let x = pose.rotation * pw + pose.translation;
-    if !(x.z > MIN_DEPTH) {
-        return f64::INFINITY;
-    }
-    let iz = 1.0 / x.z;
-    let du = cam.fx * x.x * iz + cam.cx - px.x;
-    let dv = cam.fy * x.y * iz + cam.cy - px.y;
-    du * du + dv * dv
-}
 
 /// Robust loss `ρ(s)` of a squared residual `s` and its derivative `ρ'(s)` (the IRLS weight).
 #[derive(Clone, Copy, Debug)]
@@ -273,48 +243,6 @@ pub struct RefineResult {
     pub iterations: usize,
 }
 
-/// Validated compact copies of the finite correspondences.
-pub(crate) fn finite_pairs(
-    pixels: &[Point2<f64>],
-    points: &[Point3<f64>],
-) -> (Vec<Vector2<f64>>, Vec<Vector3<f64>>, Vec<usize>) {
-    let mut px = Vec::with_capacity(pixels.len());
-    let mut pw = Vec::with_capacity(pixels.len());
-    let mut orig = Vec::with_capacity(pixels.len());
-    for (i, (p, x)) in pixels.iter().zip(points).enumerate() {
-        if p.coords.iter().chain(x.coords.iter()).all(|v| v.is_finite()) {
-            px.push(p.coords);
-            pw.push(x.coords);
-            orig.push(i);
-        }
-    }
-    (px, pw, orig)
-}
-
-/// The finite correspondences of a non-minimal problem, after the basic checks; at least 4.
-pub(crate) fn checked_pairs(
-    intrinsics: &Intrinsics,
-    pixels: &[Point2<f64>],
-    points: &[Point3<f64>],
-) -> Result<(Vec<Vector2<f64>>, Vec<Vector3<f64>>), PnpError> {
-    check_basic(intrinsics, pixels.len(), points.len())?;
-    let (px, pw, _) = finite_pairs(pixels, points);
-    if px.len() < 4 {
-        return Err(PnpError::TooFewPoints { usable: px.len(), required: 4 });
-    }
-    Ok((px, pw))
-}
-
-pub(crate) fn check_basic(intrinsics: &Intrinsics, pixels: usize, points: usize) -> Result<(), PnpError> {
-    if !intrinsics.is_valid() {
-        return Err(PnpError::InvalidIntrinsics);
-    }
-    if pixels != points {
-        return Err(PnpError::LengthMismatch { pixels, points, scores: None });
-    }
-    Ok(())
-}
-
 /// Levenberg–Marquardt refinement of a camera-to-map pose on all (finite) correspondences,
 /// minimising the robust reprojection error in pixels. Needs ≥ 4 finite correspondences and a
 /// finite initial pose.
@@ -325,7 +253,8 @@ pub fn refine_pose(
     initial: &Isometry3<f64>,
     options: &RefineOptions,
 ) -> Result<RefineResult, PnpError> {
-    let (px, pw) = checked_pairs(intrinsics, pixels, points)?;
+    let pairs = checked_pairs(intrinsics, pixels, points)?;
+    let (px, pw) = (pairs.pixels, pairs.points);
     let start = MapToCamera::from_camera_to_map(initial);
     if !start.is_finite() {
         return Err(PnpError::InvalidParams("non-finite initial pose"));
@@ -366,7 +295,8 @@ pub fn pose_covariance(
     pose: &Isometry3<f64>,
 ) -> Result<Matrix6<f64>, PnpError> {
     check_basic(intrinsics, pixels.len(), points.len())?;
-    let (px, pw, _) = finite_pairs(pixels, points);
+    let pairs = finite_pairs(pixels, points);
+    let (px, pw) = (pairs.pixels, pairs.points);
     let idx: Vec<usize> = (0..px.len()).collect();
     let m2c = MapToCamera::from_camera_to_map(pose);
     covariance(&Cam::new(intrinsics), &px, &pw, &idx, &m2c)

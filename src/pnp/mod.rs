@@ -24,22 +24,30 @@
 // `!(x > y)` is deliberate throughout: it is true for NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+mod coverage;
 mod epnp;
+mod evaluator;
 mod lm;
+mod nonminimal;
+mod ops;
 mod p3p;
+mod pool;
 mod ransac;
-mod rng;
+mod sampler;
+mod scorer;
+mod termination;
 
-use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::geometry::PriorSpace;
+use crate::geometry::{Intrinsics, PriorSpace};
 
 pub use epnp::epnp;
 pub use lm::{pose_covariance, refine_pose, RefineOptions, RefineResult};
+pub use nonminimal::solve_pnp_nonminimal;
 pub use p3p::{p3p, P3pSolutions};
-pub use ransac::{solve_pnp_nonminimal, solve_pnp_ransac, solve_pnp_ransac_guided, solve_pnp_ransac_with_prior};
+pub use ransac::solve_pnp_ransac;
 
 /// Why a PnP solve produced no pose.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -97,7 +105,7 @@ pub struct PnpParams {
     /// displaced patch of matches gathers its support in a few cells, the true pose's spreads
     /// over the image.
     pub coverage_cell_px: f64,
-    /// With coverage scoring and prior depths ([`solve_pnp_ransac_with_prior`]): an inlier
+    /// With coverage scoring and prior depths ([`Guidance::prior_depths`]): an inlier
     /// counts only if its depth is within this share of the prior's (affinely mapped); 0: off.
     pub prior_tolerance: f64,
     /// The focal length (px) that the pixel sizes above are meant for: [`PnpParams::for_camera`]
@@ -106,6 +114,10 @@ pub struct PnpParams {
     /// projects to more pixels at a longer focal length. They are never scaled down: the
     /// matcher's own pixel error does not shrink with a shorter one. 0: as they are.
     pub reference_focal_px: f64,
+    /// Seed of the random sampling: a solve is deterministic for a given seed. Not a
+    /// parameter of the file: the localizer sets it from its own `seed`.
+    #[serde(skip)]
+    pub seed: u64,
 }
 
 impl PnpParams {
@@ -139,8 +151,18 @@ impl Default for PnpParams {
             coverage_cell_px: 32.0,
             prior_tolerance: 0.2,
             reference_focal_px: 525.0,
+            seed: 0,
         }
     }
+}
+
+/// The correspondences of one robust PnP solve: pixel `i` of the image of `intrinsics` is
+/// putatively the projection of map point `i`.
+#[derive(Clone, Copy, Debug)]
+pub struct Problem<'a> {
+    pub intrinsics: &'a Intrinsics,
+    pub pixels: &'a [Point2<f64>],
+    pub points: &'a [Point3<f64>],
 }
 
 /// Evidence about a camera-to-map pose beyond the correspondences, e.g. how the map rendered at
@@ -176,7 +198,7 @@ impl Agreement {
     }
 }
 
-/// A verifier and how [`solve_pnp_ransac_guided`] uses it: it keeps the `candidates` best
+/// A verifier and how [`solve_pnp_ransac`] uses it: it keeps the `candidates` best
 /// distinct hypotheses by coverage, draws at least `min_iterations`, and returns the one with the most agreement +
 /// `coverage_weight`·(cells / the most cells of any candidate).
 #[derive(Clone, Copy)]
@@ -201,7 +223,7 @@ pub struct Verification<'a> {
     pub min_trust: f64,
 }
 
-/// What guides [`solve_pnp_ransac_guided`] beyond the correspondences; each part optional.
+/// What guides [`solve_pnp_ransac`] beyond the correspondences; each part optional.
 #[derive(Clone, Copy, Default)]
 pub struct Guidance<'a> {
     /// One per correspondence, higher = more likely correct: PROSAC sampling.

@@ -184,30 +184,9 @@ pub(crate) fn p3p_unit(y: &[Vector3<f64>; 3], x: &[Vector3<f64>; 3]) -> P3pSolut
     let d1 = m12 - m23 * k12;
     let d2 = m13 - m23 * k13;
 
-    // det(D1 + γD2) as a cubic in γ, from the column triple product.
-    let (p1, p2, p3) = (d1.column(0).into_owned(), d1.column(1).into_owned(), d1.column(2).into_owned());
-    let (q1, q2, q3) = (d2.column(0).into_owned(), d2.column(1).into_owned(), d2.column(2).into_owned());
-    let c0 = p1.dot(&p2.cross(&p3));
-    let c1 = q1.dot(&p2.cross(&p3)) + p1.dot(&q2.cross(&p3)) + p1.dot(&p2.cross(&q3));
-    let c2 = p1.dot(&q2.cross(&q3)) + q1.dot(&p2.cross(&q3)) + q1.dot(&q2.cross(&p3));
-    let c3 = q1.dot(&q2.cross(&q3));
-    let Some(g) = cubic_real_root(c3, c2, c1, c0) else { return out };
+    let Some(g) = degenerate_combination(&d1, &d2) else { return out };
     let d0 = d1 + d2 * g;
-
-    // Null vector of the rank-2 D0: the largest cross product of two rows.
-    let (r0, r1, r2) = (d0.row(0).transpose(), d0.row(1).transpose(), d0.row(2).transpose());
-    let cands = [r0.cross(&r1), r0.cross(&r2), r1.cross(&r2)];
-    let mut n0 = cands[0];
-    for c in &cands[1..] {
-        if c.norm_squared() > n0.norm_squared() {
-            n0 = *c;
-        }
-    }
-    let d0_scale = d0.norm_squared();
-    if !(n0.norm_squared() > 1e-20 * d0_scale * d0_scale) {
-        return out;
-    }
-    let n0 = n0.normalize();
+    let Some(n0) = null_vector(&d0) else { return out };
     let u = orthogonal(&n0);
     let v = n0.cross(&u);
     let (planes, np) = homogeneous_quadratic(quad(&d0, &u, &u), quad(&d0, &u, &v), quad(&d0, &v, &v));
@@ -250,6 +229,38 @@ pub(crate) fn p3p_unit(y: &[Vector3<f64>; 3], x: &[Vector3<f64>; 3]) -> P3pSolut
         }
     }
     out
+}
+
+/// A real γ with det(D1 + γD2) = 0, the determinant as a cubic in γ from the column triple
+/// product.
+#[inline(always)]
+fn degenerate_combination(d1: &Matrix3<f64>, d2: &Matrix3<f64>) -> Option<f64> {
+    let (p1, p2, p3) = (d1.column(0).into_owned(), d1.column(1).into_owned(), d1.column(2).into_owned());
+    let (q1, q2, q3) = (d2.column(0).into_owned(), d2.column(1).into_owned(), d2.column(2).into_owned());
+    let c0 = p1.dot(&p2.cross(&p3));
+    let c1 = q1.dot(&p2.cross(&p3)) + p1.dot(&q2.cross(&p3)) + p1.dot(&p2.cross(&q3));
+    let c2 = p1.dot(&q2.cross(&q3)) + q1.dot(&p2.cross(&q3)) + q1.dot(&q2.cross(&p3));
+    let c3 = q1.dot(&q2.cross(&q3));
+    cubic_real_root(c3, c2, c1, c0)
+}
+
+/// The unit null vector of the rank-2 `d0`: the largest cross product of two rows (`None` when
+/// `d0` is of lower rank).
+#[inline(always)]
+fn null_vector(d0: &Matrix3<f64>) -> Option<Vector3<f64>> {
+    let (r0, r1, r2) = (d0.row(0).transpose(), d0.row(1).transpose(), d0.row(2).transpose());
+    let cands = [r0.cross(&r1), r0.cross(&r2), r1.cross(&r2)];
+    let mut n0 = cands[0];
+    for c in &cands[1..] {
+        if c.norm_squared() > n0.norm_squared() {
+            n0 = *c;
+        }
+    }
+    let d0_scale = d0.norm_squared();
+    if !(n0.norm_squared() > 1e-20 * d0_scale * d0_scale) {
+        return None;
+    }
+    Some(n0.normalize())
 }
 
 /// Gauss–Newton on the three distance equations; `None` if it does not converge to a

@@ -1,8 +1,46 @@
-use super::rng::WyRand;
 use super::*;
 use crate::geometry::Intrinsics;
+use crate::rng::WyRand;
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 use proptest::prelude::*;
+
+/// Robust PnP with scores only (the tests' common case).
+fn ransac(
+    k: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+    scores: Option<&[f32]>,
+    params: &PnpParams,
+    seed: u64,
+) -> Result<PnpSolution, PnpError> {
+    ransac_guided(k, pixels, points, &Guidance { scores, ..Guidance::default() }, params, seed)
+}
+
+/// Robust PnP with scores and prior depths.
+fn ransac_with_prior(
+    k: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+    scores: Option<&[f32]>,
+    prior_depths: Option<&[f64]>,
+    params: &PnpParams,
+    seed: u64,
+) -> Result<PnpSolution, PnpError> {
+    ransac_guided(k, pixels, points, &Guidance { scores, prior_depths, ..Guidance::default() }, params, seed)
+}
+
+/// [`solve_pnp_ransac`] with the seed given apart.
+fn ransac_guided(
+    intrinsics: &Intrinsics,
+    pixels: &[Point2<f64>],
+    points: &[Point3<f64>],
+    guidance: &Guidance,
+    params: &PnpParams,
+    seed: u64,
+) -> Result<PnpSolution, PnpError> {
+    let problem = Problem { intrinsics, pixels, points };
+    solve_pnp_ransac(&problem, guidance, &PnpParams { seed, ..params.clone() })
+}
 
 fn k() -> Intrinsics {
     Intrinsics { fx: 600.0, fy: 580.0, cx: 320.0, cy: 240.0, width: 640, height: 480 }
@@ -209,7 +247,7 @@ fn scenario(seed: u64, n: usize, outlier_ratio: f64) -> Scenario {
 fn ransac_finds_pose_with_80_percent_outliers() {
     for seed in 0..5 {
         let (pose, px, pw, truth) = scenario(100 + seed, 500, 0.8);
-        let sol = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), seed).unwrap();
+        let sol = ransac(&k(), &px, &pw, None, &PnpParams::default(), seed).unwrap();
         let (r, t) = pose_error(&sol.pose, &pose);
         assert!(r < 5e-3 && t < 0.1, "seed {seed}: {r} {t}");
         let true_inliers = truth.iter().filter(|&&b| b).count();
@@ -234,8 +272,8 @@ fn prosac_needs_fewer_iterations_when_scores_rank_inliers_high() {
             .map(|&t| if t { uniform(&mut rng, 0.4, 1.0) } else { uniform(&mut rng, 0.0, 0.7) } as f32)
             .collect();
         let params = PnpParams::default();
-        let u = solve_pnp_ransac(&k(), &px, &pw, None, &params, seed).unwrap();
-        let p = solve_pnp_ransac(&k(), &px, &pw, Some(&scores), &params, seed).unwrap();
+        let u = ransac(&k(), &px, &pw, None, &params, seed).unwrap();
+        let p = ransac(&k(), &px, &pw, Some(&scores), &params, seed).unwrap();
         for s in [&u, &p] {
             let (r, t) = pose_error(&s.pose, &pose);
             assert!(r < 5e-3 && t < 0.1, "seed {seed}: {r} {t}");
@@ -249,15 +287,15 @@ fn prosac_needs_fewer_iterations_when_scores_rank_inliers_high() {
 #[test]
 fn ransac_is_deterministic_for_a_seed() {
     let (_, px, pw, _) = scenario(5, 300, 0.7);
-    let a = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), 42).unwrap();
-    let b = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), 42).unwrap();
+    let a = ransac(&k(), &px, &pw, None, &PnpParams::default(), 42).unwrap();
+    let b = ransac(&k(), &px, &pw, None, &PnpParams::default(), 42).unwrap();
     assert_eq!(a, b);
 }
 
 #[test]
 fn pose_is_camera_to_map() {
     let (pose, px, pw, _) = scenario(9, 200, 0.0);
-    let sol = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), 1).unwrap();
+    let sol = ransac(&k(), &px, &pw, None, &PnpParams::default(), 1).unwrap();
     // x_map = pose * x_cam: the camera centre in the map is the pose's translation.
     assert!((sol.pose.translation.vector - pose.translation.vector).norm() < 0.05);
     let xc = sol.pose.inverse() * pw[0];
@@ -271,31 +309,28 @@ fn degenerate_and_invalid_inputs_are_errors() {
     let params = PnpParams::default();
     // Too few points.
     let (_, px, pw, _) = scenario(1, 3, 0.0);
-    assert!(matches!(solve_pnp_ransac(&intr, &px, &pw, None, &params, 0), Err(PnpError::TooFewPoints { .. })));
+    assert!(matches!(ransac(&intr, &px, &pw, None, &params, 0), Err(PnpError::TooFewPoints { .. })));
     assert!(solve_pnp_nonminimal(&intr, &px, &pw, &RefineOptions::default()).is_err());
     assert!(epnp(&intr, &px, &pw).is_err());
     // Collinear map points.
     let pw: Vec<Point3<f64>> = (0..50).map(|i| Point3::new(i as f64 * 0.1, 0.0, 5.0)).collect();
     let px: Vec<Point2<f64>> = pw.iter().map(|p| intr.project(p).unwrap()).collect();
-    assert!(matches!(solve_pnp_ransac(&intr, &px, &pw, None, &params, 0), Err(PnpError::Degenerate(_))));
+    assert!(matches!(ransac(&intr, &px, &pw, None, &params, 0), Err(PnpError::Degenerate(_))));
     assert!(solve_pnp_nonminimal(&intr, &px, &pw, &RefineOptions::default()).is_err());
     // All NaN.
     let nan_px = vec![Point2::new(f64::NAN, 1.0); 50];
     let nan_pw = vec![Point3::new(1.0, f64::NAN, 1.0); 50];
-    assert!(matches!(solve_pnp_ransac(&intr, &nan_px, &nan_pw, None, &params, 0), Err(PnpError::TooFewPoints { .. })));
+    assert!(matches!(ransac(&intr, &nan_px, &nan_pw, None, &params, 0), Err(PnpError::TooFewPoints { .. })));
     assert!(solve_pnp_nonminimal(&intr, &nan_px, &nan_pw, &RefineOptions::default()).is_err());
     assert!(refine_pose(&intr, &nan_px, &nan_pw, &Isometry3::identity(), &RefineOptions::default()).is_err());
     // Bad intrinsics, lengths, parameters.
     let (_, px, pw, _) = scenario(2, 50, 0.0);
     let bad = Intrinsics { fx: f64::NAN, ..intr };
-    assert_eq!(solve_pnp_ransac(&bad, &px, &pw, None, &params, 0), Err(PnpError::InvalidIntrinsics));
-    assert!(matches!(solve_pnp_ransac(&intr, &px[..10], &pw, None, &params, 0), Err(PnpError::LengthMismatch { .. })));
-    assert!(matches!(
-        solve_pnp_ransac(&intr, &px, &pw, Some(&[1.0; 3]), &params, 0),
-        Err(PnpError::LengthMismatch { .. })
-    ));
+    assert_eq!(ransac(&bad, &px, &pw, None, &params, 0), Err(PnpError::InvalidIntrinsics));
+    assert!(matches!(ransac(&intr, &px[..10], &pw, None, &params, 0), Err(PnpError::LengthMismatch { .. })));
+    assert!(matches!(ransac(&intr, &px, &pw, Some(&[1.0; 3]), &params, 0), Err(PnpError::LengthMismatch { .. })));
     let p = PnpParams { threshold_px: f64::NAN, ..params.clone() };
-    assert!(matches!(solve_pnp_ransac(&intr, &px, &pw, None, &p, 0), Err(PnpError::InvalidParams(_))));
+    assert!(matches!(ransac(&intr, &px, &pw, None, &p, 0), Err(PnpError::InvalidParams(_))));
     // Pure outliers: no consensus (or, by chance, a tiny one), never a panic.
     let mut rng = WyRand::new(3);
     let rnd_px: Vec<Point2<f64>> =
@@ -304,7 +339,7 @@ fn degenerate_and_invalid_inputs_are_errors() {
         .map(|_| Point3::new(uniform(&mut rng, -5.0, 5.0), uniform(&mut rng, -5.0, 5.0), uniform(&mut rng, 1.0, 9.0)))
         .collect();
     let strict = PnpParams { min_inliers: 20, ..params.clone() };
-    assert!(matches!(solve_pnp_ransac(&intr, &rnd_px, &rnd_pw, None, &strict, 0), Err(PnpError::NoConsensus { .. })));
+    assert!(matches!(ransac(&intr, &rnd_px, &rnd_pw, None, &strict, 0), Err(PnpError::NoConsensus { .. })));
 }
 
 #[test]
@@ -314,7 +349,7 @@ fn non_finite_correspondences_are_ignored() {
     pw[7] = Point3::new(f64::INFINITY, 0.0, 1.0);
     let mut scores = vec![0.5f32; 200];
     scores[9] = f32::NAN;
-    let sol = solve_pnp_ransac(&k(), &px, &pw, Some(&scores), &PnpParams::default(), 0).unwrap();
+    let sol = ransac(&k(), &px, &pw, Some(&scores), &PnpParams::default(), 0).unwrap();
     assert!(!sol.inliers[3] && !sol.inliers[7]);
     let (r, t) = pose_error(&sol.pose, &pose);
     assert!(r < 5e-3 && t < 0.1, "{r} {t}");
@@ -332,7 +367,7 @@ fn covariance_is_symmetric_psd_and_shrinks_with_more_points() {
         let mut rng = WyRand::new(77);
         let pose = random_pose(&mut rng);
         let (px, pw) = visible(&mut rng, &pose, n, 1.0);
-        let sol = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), 0).unwrap();
+        let sol = ransac(&k(), &px, &pw, None, &PnpParams::default(), 0).unwrap();
         let c = sol.covariance;
         assert!((c - c.transpose()).amax() <= 1e-12 * c.amax());
         assert!(is_psd(&c));
@@ -393,7 +428,7 @@ fn stress_success_rates() {
             let t0 = std::time::Instant::now();
             for seed in 0..trials {
                 let (pose, px, pw, _) = scenario(1000 + seed, n, 1.0 - ratio);
-                if let Ok(s) = solve_pnp_ransac(&k(), &px, &pw, None, &PnpParams::default(), seed) {
+                if let Ok(s) = ransac(&k(), &px, &pw, None, &PnpParams::default(), seed) {
                     let (r, t) = pose_error(&s.pose, &pose);
                     iters += s.iterations;
                     if r < 1e-2 && t < 0.2 {
@@ -438,13 +473,13 @@ fn extreme_values_do_not_panic() {
         pw[i] = Point3::new(1e200, -1e200, 1e200);
         px[i + 10] = Point2::new(1e300, -1e300);
     }
-    let _ = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams::default(), 0);
+    let _ = ransac(&intr, &px, &pw, None, &PnpParams::default(), 0);
     let _ = solve_pnp_nonminimal(&intr, &px, &pw, &RefineOptions::default());
     let _ = epnp(&intr, &px, &pw);
     let huge: Vec<Point3<f64>> =
         (0..20).map(|i| Point3::new(1e200 * i as f64, 1e199 * (i * i) as f64, 1e200)).collect();
     let hp: Vec<Point2<f64>> = (0..20).map(|i| Point2::new(i as f64, (i * 7 % 13) as f64)).collect();
-    assert!(solve_pnp_ransac(&intr, &hp, &huge, None, &PnpParams::default(), 0).is_err());
+    assert!(ransac(&intr, &hp, &huge, None, &PnpParams::default(), 0).is_err());
     let _ = solve_pnp_nonminimal(&intr, &hp, &huge, &RefineOptions::default());
     let bad_pose = Isometry3::from_parts(Translation3::new(f64::NAN, 0.0, 0.0), UnitQuaternion::identity());
     assert!(refine_pose(&intr, &px, &pw, &bad_pose, &RefineOptions::default()).is_err());
@@ -465,7 +500,7 @@ fn ransac_handles_planar_maps() {
         px.push(Point2::new(p.x + normal(&mut rng), p.y + normal(&mut rng)));
     }
     corrupt(&mut rng, &mut px, &pw, 0.6);
-    let sol = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams::default(), 0).unwrap();
+    let sol = ransac(&intr, &px, &pw, None, &PnpParams::default(), 0).unwrap();
     let (r, t) = pose_error(&sol.pose, &pose);
     assert!(r < 1e-2 && t < 0.2, "{r} {t}");
     assert!(matches!(epnp(&intr, &px, &pw), Err(PnpError::Degenerate(_))));
@@ -491,10 +526,9 @@ fn coverage_scoring_prefers_spread_support_over_a_displaced_patch() {
     px.extend(random_px);
     pw.extend(random_pw);
     let params = PnpParams { max_iterations: 20_000, ..PnpParams::default() };
-    let by_count = solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 0.0, ..params.clone() }, 1)
-        .expect("a pose");
-    let by_cells =
-        solve_pnp_ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 32.0, ..params }, 1).expect("a pose");
+    let by_count =
+        ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 0.0, ..params.clone() }, 1).expect("a pose");
+    let by_cells = ransac(&intr, &px, &pw, None, &PnpParams { coverage_cell_px: 32.0, ..params }, 1).expect("a pose");
     let (rot, trans) = pose_error(&by_cells.pose, &pose);
     assert!(rot < 0.01 && trans < 0.05, "coverage: {rot} rad, {trans} m off");
     assert!(by_cells.inliers[..12].iter().filter(|&&f| f).count() >= 11);
@@ -510,10 +544,10 @@ fn depth_agreement_finds_the_affine_prior_map() {
         p.1 *= 1.5; // a displaced patch: 50 % deeper than the prior says
     }
     pairs[9].1 = 4.0;
-    let agree = super::ransac::depth_agreement(&pairs, 0.1);
+    let agree = super::coverage::depth_agreement(&pairs, 0.1);
     assert_eq!(agree, [true, true, true, true, true, true, false, false, false, true]);
     // Too few known depths: no evidence either way.
-    assert!(super::ransac::depth_agreement(&pairs[..2], 0.1).iter().all(|&a| a));
+    assert!(super::coverage::depth_agreement(&pairs[..2], 0.1).iter().all(|&a| a));
 }
 
 /// 10 true matches, and 16 wrong ones that happen to agree with one other pose over the whole
@@ -539,12 +573,12 @@ fn prior_depths_reject_a_pose_the_prior_contradicts() {
         prior.push(uniform(&mut rng, 0.5, 8.0));
     }
     let params = PnpParams { max_iterations: 20_000, ..PnpParams::default() };
-    let without = solve_pnp_ransac(&intr, &px, &pw, None, &params, 3).expect("a pose");
+    let without = ransac(&intr, &px, &pw, None, &params, 3).expect("a pose");
     assert!(pose_error(&without.pose, &wrong).0 < 0.01, "without the prior the larger wrong set wins");
-    let with = solve_pnp_ransac_with_prior(&intr, &px, &pw, None, Some(&prior), &params, 3).expect("a pose");
+    let with = ransac_with_prior(&intr, &px, &pw, None, Some(&prior), &params, 3).expect("a pose");
     let (rot, trans) = pose_error(&with.pose, &pose);
     assert!(rot < 0.01 && trans < 0.05, "{rot} rad, {trans} m off");
-    let mismatched = solve_pnp_ransac_with_prior(&intr, &px, &pw, None, Some(&prior[..3]), &params, 3);
+    let mismatched = ransac_with_prior(&intr, &px, &pw, None, Some(&prior[..3]), &params, 3);
     assert!(matches!(mismatched, Err(PnpError::LengthMismatch { .. })));
 }
 
@@ -580,7 +614,7 @@ fn a_verifier_chooses_among_the_candidates() {
     px.extend(random_px);
     pw.extend(random_pw);
     let params = PnpParams::default();
-    let plain = solve_pnp_ransac(&intr, &px, &pw, None, &params, 2).expect("a pose");
+    let plain = ransac(&intr, &px, &pw, None, &params, 2).expect("a pose");
     assert!(pose_error(&plain.pose, &wrong).0 < 0.01, "without a verifier the larger wrong set wins");
 
     let verifier = NearPose { truth: pose, calls: Default::default() };
@@ -597,7 +631,7 @@ fn a_verifier_chooses_among_the_candidates() {
         min_trust: 0.0,
     };
     let guidance = Guidance { verification: Some(verification), ..Guidance::default() };
-    let verified = solve_pnp_ransac_guided(&intr, &px, &pw, &guidance, &params, 2).expect("a pose");
+    let verified = ransac_guided(&intr, &px, &pw, &guidance, &params, 2).expect("a pose");
     let (rot, trans) = pose_error(&verified.pose, &pose);
     assert!(rot < 0.01 && trans < 0.05, "{rot} rad, {trans} m off");
     assert!(verified.inliers[..8].iter().all(|&f| f) && verified.inliers[8..32].iter().all(|&f| !f));
@@ -610,14 +644,14 @@ fn a_verifier_chooses_among_the_candidates() {
     let far = NearPose { truth: random_pose(&mut WyRand::new(77)), calls: Default::default() };
     let untrusted = Verification { verifier: &far, min_trust: 0.5, ..verification };
     let guidance_far = Guidance { verification: Some(untrusted), ..Guidance::default() };
-    let geometric = solve_pnp_ransac_guided(&intr, &px, &pw, &guidance_far, &params, 2).expect("a pose");
+    let geometric = ransac_guided(&intr, &px, &pw, &guidance_far, &params, 2).expect("a pose");
     assert!(pose_error(&geometric.pose, &wrong).0 < 0.01, "an untrusted verifier leaves geometry's choice");
 
     // No coverage scoring: no pool, the verifier is never asked.
     let unscored = PnpParams { coverage_cell_px: 0.0, ..params };
     let idle = NearPose { truth: pose, calls: Default::default() };
     let guidance = Guidance { verification: Some(Verification { verifier: &idle, ..verification }), ..guidance };
-    solve_pnp_ransac_guided(&intr, &px, &pw, &guidance, &unscored, 2).expect("a pose");
+    ransac_guided(&intr, &px, &pw, &guidance, &unscored, 2).expect("a pose");
     assert_eq!(idle.calls.get(), 0);
 }
 
@@ -627,7 +661,7 @@ fn a_verifier_chooses_among_the_candidates() {
 fn an_easy_frame_is_verified_once() {
     let (pose, px, pw, _) = scenario(21, 200, 0.3);
     let params = PnpParams::default();
-    let plain = solve_pnp_ransac(&k(), &px, &pw, None, &params, 4).expect("a pose");
+    let plain = ransac(&k(), &px, &pw, None, &params, 4).expect("a pose");
     let verifier = NearPose { truth: pose, calls: Default::default() };
     let verification = Verification {
         verifier: &verifier,
@@ -642,7 +676,7 @@ fn an_easy_frame_is_verified_once() {
         min_trust: 0.0,
     };
     let guidance = Guidance { verification: Some(verification), ..Guidance::default() };
-    let verified = solve_pnp_ransac_guided(&k(), &px, &pw, &guidance, &params, 4).expect("a pose");
+    let verified = ransac_guided(&k(), &px, &pw, &guidance, &params, 4).expect("a pose");
     assert_eq!(verifier.calls.get(), 1);
     assert_eq!(verified.iterations, plain.iterations);
     assert!(pose_error(&verified.pose, &pose).0 < 0.01);

@@ -5,11 +5,8 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::inputs::IndexedMap;
-use super::FrameGeometry;
 use crate::consistency::estimate_scale;
-use crate::frame::Frame;
-use crate::geometry::{centroid, prior_normals, DepthKind};
+use crate::geometry::{centroid, point_cloud_normals, FrameGeometry, PointIndex};
 
 /// Length of one feature vector.
 pub const FEATURE_DIM: usize = 24;
@@ -40,12 +37,21 @@ pub fn centred_clouds(geometry: &FrameGeometry, rescale: bool) -> (Vec<Vector3<f
     (centred_image, centred_map)
 }
 
-/// n^I: normals of the image cloud from the dense prior (aligned when an alignment is known),
-/// oriented towards the camera.
-pub fn image_normals(frame: &Frame, geometry: &FrameGeometry, kind: DepthKind) -> Vec<Vector3<f64>> {
-    let Some(prior) = &frame.depth_prior else { return vec![Vector3::zeros(); geometry.len()] };
-    let align = geometry.alignment();
-    prior_normals(&frame.intrinsics, prior, kind, &geometry.pixels, |d| align.depth(d))
+/// The map, indexed once, with the normal of every map point (PCA over its
+/// [`MAP_NORMAL_NEIGHBOURS`] nearest, sign left to each frame): a frame then needs one
+/// nearest-neighbour lookup per correspondence instead of a k-NN and an eigen-solve.
+pub struct IndexedMap {
+    pub points: Vec<Point3<f32>>,
+    pub index: PointIndex,
+    pub normals: Vec<Vector3<f32>>,
+}
+
+impl IndexedMap {
+    pub fn new(points: Vec<Point3<f32>>) -> Self {
+        let index = PointIndex::new(&points);
+        let normals = point_cloud_normals(&index, &points, MAP_NORMAL_NEIGHBOURS);
+        Self { points, index, normals }
+    }
 }
 
 /// n^P: the normal of the map point nearest to each correspondence's map point, oriented

@@ -9,19 +9,8 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix};
+use crate::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix, PairMetric};
 use crate::geometry::{centroid, PointIndex};
-
-/// Which pairwise consistency the graphs' θ measures.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ThetaKind {
-    /// The paper's angle consistency, eq. (5)–(7), on clouds centred on their centroids.
-    #[default]
-    Angle,
-    /// Length consistency of the aligned (metric) image cloud, the paper's distance ablation.
-    Distance,
-}
 
 /// Graph sizes and the θ sensitivity.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -30,7 +19,7 @@ pub struct GraphParams {
     pub neighbours: usize,
     /// M: global keypoints.
     pub keypoints: usize,
-    pub theta: ThetaKind,
+    pub theta: PairMetric,
     /// σ_d of eq. (7) (angle θ).
     pub sigma_d: f64,
     /// Distance θ tolerance: `sigma_abs + sigma_rel·length` (m).
@@ -40,7 +29,7 @@ pub struct GraphParams {
 
 impl Default for GraphParams {
     fn default() -> Self {
-        Self { neighbours: 32, keypoints: 100, theta: ThetaKind::Angle, sigma_d: 0.2, sigma_abs: 0.05, sigma_rel: 0.1 }
+        Self { neighbours: 32, keypoints: 100, theta: PairMetric::Angle, sigma_d: 0.2, sigma_abs: 0.05, sigma_rel: 0.1 }
     }
 }
 
@@ -48,8 +37,8 @@ impl GraphParams {
     /// θ among all pairs of `image`/`map`, into `out`.
     fn pair_theta(&self, image: &[Point3<f64>], map: &[Point3<f64>], out: &mut ConsistencyMatrix) {
         match self.theta {
-            ThetaKind::Angle => angle_consistency(image, map, None, self.sigma_d, out),
-            ThetaKind::Distance => distance_consistency(image, map, self.sigma_abs, self.sigma_rel, out),
+            PairMetric::Angle => angle_consistency(image, map, None, self.sigma_d, out),
+            PairMetric::Distance => distance_consistency(image, map, self.sigma_abs, self.sigma_rel, out),
         }
     }
 }
@@ -110,8 +99,8 @@ pub fn build_graphs(image: &[Point3<f64>], map: &[Point3<f64>], scores: &[f32], 
     let global_theta = theta.values.clone();
 
     let cross_theta = match params.theta {
-        ThetaKind::Angle => cross_angle_theta(&image[..n], &map[..n], &key_image, &key_map, params.sigma_d),
-        ThetaKind::Distance => cross_distance_theta(&image[..n], &map[..n], &key_image, &key_map, params),
+        PairMetric::Angle => cross_angle_theta(&image[..n], &map[..n], &key_image, &key_map, params.sigma_d),
+        PairMetric::Distance => cross_distance_theta(&image[..n], &map[..n], &key_image, &key_map, params),
     };
     Graphs {
         local_index,
@@ -230,7 +219,7 @@ mod tests {
         let map = grid(150);
         let rigid: Vec<_> = map.iter().map(|p| Point3::new(p.y, -p.x, p.z + 2.0)).collect();
         let scores: Vec<f32> = (0..150).map(|i| i as f32).collect();
-        let params = GraphParams { theta: ThetaKind::Distance, ..GraphParams::default() };
+        let params = GraphParams { theta: PairMetric::Distance, ..GraphParams::default() };
         let g = build_graphs(&rigid, &map, &scores, &params);
         assert!(g.cross_theta.iter().all(|&t| t > 0.999), "a rigid copy keeps every length");
         let off_diagonal =

@@ -3,30 +3,13 @@
 //! training — the ground-truth labels. The same code builds training samples (`angle-i2p
 //! export`) and inference inputs, so both sides see identical numbers.
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 
-use super::features::{features, map_normals, FEATURE_DIM, MAP_NORMAL_NEIGHBOURS};
+pub use super::features::IndexedMap;
+use super::features::{features, map_normals, FEATURE_DIM};
 use super::graph::{build_graphs, Graphs};
-use super::network::{KeypointRanking, NetworkParams};
+use super::network_params::{KeypointRanking, NetworkParams};
 use super::{FrameGeometry, Rejector, SpectralRejector};
-use crate::geometry::{point_cloud_normals, PointIndex};
-
-/// The map, indexed once, with the normal of every map point (PCA over its
-/// [`MAP_NORMAL_NEIGHBOURS`] nearest, sign left to each frame): a frame then needs one
-/// nearest-neighbour lookup per correspondence instead of a k-NN and an eigen-solve.
-pub struct IndexedMap {
-    pub points: Vec<Point3<f32>>,
-    pub index: PointIndex,
-    pub normals: Vec<Vector3<f32>>,
-}
-
-impl IndexedMap {
-    pub fn new(points: Vec<Point3<f32>>) -> Self {
-        let index = PointIndex::new(&points);
-        let normals = point_cloud_normals(&index, &points, MAP_NORMAL_NEIGHBOURS);
-        Self { points, index, normals }
-    }
-}
 
 /// One frame's network inputs.
 #[derive(Clone, Debug, Default)]
@@ -38,6 +21,44 @@ pub struct NetworkInputs {
     pub spectral_scores: Vec<f32>,
     /// The matcher's confidence per correspondence (an input of models trained with it).
     pub matcher_scores: Vec<f32>,
+}
+
+/// The values of one input tensor, in the element type the network declares.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TensorValues {
+    F32(Vec<f32>),
+    I64(Vec<i64>),
+}
+
+/// One named input of the network: row-major values and their shape.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InputTensor {
+    pub name: &'static str,
+    pub shape: Vec<usize>,
+    pub values: TensorValues,
+}
+
+impl NetworkInputs {
+    /// The network's input tensors (N correspondences, V local nodes of K, M keypoints): the one
+    /// definition of the layout, which the ONNX run feeds and `export` writes (`NAME.npy`) for
+    /// training.
+    pub fn tensors(&self) -> Vec<InputTensor> {
+        let n = self.features.len();
+        let g = &self.graphs;
+        let m = g.global_index.len();
+        let index = |v: &[u32]| TensorValues::I64(v.iter().map(|&i| i as i64).collect());
+        let f32s = |v: &[f32]| TensorValues::F32(v.to_vec());
+        let tensor = |name, shape: &[usize], values| InputTensor { name, shape: shape.to_vec(), values };
+        vec![
+            tensor("features", &[n, FEATURE_DIM], TensorValues::F32(self.features.iter().flatten().copied().collect())),
+            tensor("local_index", &[g.nodes, g.neighbours], index(&g.local_index)),
+            tensor("local_theta", &[g.nodes, g.neighbours, g.neighbours], f32s(&g.local_theta)),
+            tensor("global_index", &[m], index(&g.global_index)),
+            tensor("global_theta", &[m, m], f32s(&g.global_theta)),
+            tensor("cross_theta", &[n, m], f32s(&g.cross_theta)),
+            tensor("matcher_score", &[n], f32s(&self.matcher_scores)),
+        ]
+    }
 }
 
 /// Builds the inputs. Correspondences without prior depth get their map point as image point

@@ -6,134 +6,30 @@ pub mod features;
 pub mod graph;
 pub mod inputs;
 pub mod network;
+pub mod network_params;
 
-use nalgebra::{Point2, Point3, Vector3};
+use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
-use crate::consistency::{
-    angle_consistency, distance_consistency, estimate_scale_shift, ConsistencyMatrix, ScaleShift, ScaleShiftParams,
-};
+use crate::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix, PairMetric, ScaleShiftParams};
 use crate::frame::Frame;
-use crate::geometry::{DepthKind, Intrinsics, PointIndex, PriorSpace};
+use crate::geometry::{DepthKind, FrameParts};
 
-/// The per-frame geometry every rejector works on: the correspondences split into pixels and
-/// map points, each pixel's ray and prior depth, and the image cloud o_i (eq. 2) after the
-/// prior's scale and shift were aligned to the map (when that succeeded).
-#[derive(Clone, Debug, Default)]
-pub struct FrameGeometry {
-    pub intrinsics: Option<Intrinsics>,
-    pub pixels: Vec<Point2<f64>>,
-    pub map_points: Vec<Point3<f64>>,
-    pub matcher_scores: Vec<f32>,
-    /// Each pixel's ray scaled to z = 1.
-    pub rays: Vec<Vector3<f64>>,
-    /// Prior coordinate per pixel ([`DepthKind::coordinate`]: affine in depth or in inverse
-    /// depth, see `prior_space`); NaN where unknown.
-    pub prior_coordinate: Vec<f64>,
-    /// The space in which `prior_coordinate` is affine.
-    pub prior_space: PriorSpace,
-    /// The prior's map to metric depth, when estimated.
-    pub scale_shift: Option<ScaleShift>,
-    /// o_i: pixels back-projected with the aligned prior (prior units if not aligned).
-    pub image_points: Vec<Point3<f64>>,
-    /// n^I: normals of the image cloud from the dense prior, towards the camera (zero where
-    /// unknown); empty without a prior.
-    pub image_normals: Vec<Vector3<f64>>,
-}
+pub use crate::geometry::FrameGeometry;
 
+/// The bridge from a [`Frame`] (kept here so that `geometry` does not depend on `frame`).
 impl FrameGeometry {
     /// Builds the geometry of `frame`. Without a depth prior, `prior_coordinate` is all NaN and the
     /// image cloud empty; rejectors that need it report that.
     pub fn build(frame: &Frame, kind: DepthKind, align: Option<&ScaleShiftParams>) -> Self {
-        let k = frame.intrinsics;
-        let pixels: Vec<Point2<f64>> = frame.correspondences.iter().map(|c| c.pixel).collect();
-        let rays = pixels.iter().map(|p| Vector3::new((p.x - k.cx) / k.fx, (p.y - k.cy) / k.fy, 1.0)).collect();
-        let prior_coordinate = match &frame.depth_prior {
-            Some(prior) => pixels
-                .iter()
-                .map(|p| prior.sample(p, k.width, k.height).map_or(f64::NAN, |v| kind.coordinate(v)))
-                .collect(),
-            None => vec![f64::NAN; pixels.len()],
-        };
-        let mut geometry = Self {
-            intrinsics: Some(k),
+        let parts = FrameParts {
+            intrinsics: frame.intrinsics,
+            pixels: frame.correspondences.iter().map(|c| c.pixel).collect(),
             map_points: frame.correspondences.iter().map(|c| c.point).collect(),
             matcher_scores: frame.correspondences.iter().map(|c| c.score).collect(),
-            pixels,
-            rays,
-            prior_coordinate,
-            prior_space: kind.space(),
-            scale_shift: None,
-            image_points: Vec::new(),
-            image_normals: Vec::new(),
+            depth_prior: frame.depth_prior.as_ref(),
         };
-        if frame.depth_prior.is_some() {
-            if let Some(params) = align {
-                geometry.scale_shift = geometry.estimate_scale_shift(params);
-            }
-            geometry.lift();
-            geometry.image_normals = features::image_normals(frame, &geometry, kind);
-        }
-        geometry
-    }
-
-    pub fn len(&self) -> usize {
-        self.pixels.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.pixels.is_empty()
-    }
-
-    pub fn has_prior(&self) -> bool {
-        !self.image_points.is_empty()
-    }
-
-    /// Scale and shift of the prior from the correspondences themselves; local pairs are each
-    /// pixel's nearest neighbours in the image.
-    fn estimate_scale_shift(&self, params: &ScaleShiftParams) -> Option<ScaleShift> {
-        let known: Vec<usize> = (0..self.len())
-            .filter(|&i| self.prior_coordinate[i].is_finite() && self.prior_coordinate[i] > 0.0)
-            .collect();
-        let rays: Vec<_> = known.iter().map(|&i| self.rays[i]).collect();
-        let prior: Vec<_> = known.iter().map(|&i| self.prior_coordinate[i]).collect();
-        let map: Vec<_> = known.iter().map(|&i| self.map_points[i]).collect();
-        let flat: Vec<Point3<f32>> =
-            known.iter().map(|&i| Point3::new(self.pixels[i].x as f32, self.pixels[i].y as f32, 0.0)).collect();
-        let index = PointIndex::new(&flat);
-        let neighbours = params.local_neighbours.min(params.max_local_pairs / known.len().max(1)).max(1);
-        let mut pairs = Vec::with_capacity(known.len() * neighbours);
-        for (a, p) in flat.iter().enumerate() {
-            for b in index.nearest(p, neighbours + 1) {
-                if b != a {
-                    pairs.push((a as u32, b as u32));
-                }
-            }
-        }
-        estimate_scale_shift(&rays, &prior, &map, &pairs, self.prior_space, params)
-    }
-
-    /// The prior's map to depth: the estimated one, else the identity of its space.
-    pub fn alignment(&self) -> ScaleShift {
-        self.scale_shift.unwrap_or(ScaleShift::identity(self.prior_space))
-    }
-
-    /// o_i = depth(x_i)·ray_i; unknown prior depths give a NaN point.
-    fn lift(&mut self) {
-        let align = self.alignment();
-        self.image_points = self
-            .rays
-            .iter()
-            .zip(&self.prior_coordinate)
-            .map(|(r, &d)| {
-                let z = align.depth(d);
-                if z.is_finite() && z > 0.0 {
-                    Point3::from(r * z)
-                } else {
-                    Point3::new(f64::NAN, f64::NAN, f64::NAN)
-                }
-            })
-            .collect();
+        Self::new(parts, kind, align)
     }
 }
 
@@ -162,21 +58,10 @@ pub trait Rejector: Send {
     fn reject(&mut self, geometry: &FrameGeometry) -> Result<Rejection, RejectError>;
 }
 
-/// Which pairwise consistency the spectral rejector uses.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ConsistencyMetric {
-    /// The paper's angle consistency, eq. (5)–(7).
-    Angle,
-    /// Length consistency on the scale-and-shift-aligned image cloud.
-    #[default]
-    Distance,
-}
-
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SpectralParams {
-    pub metric: ConsistencyMetric,
+    pub metric: PairMetric,
     /// σ_d of eq. (7), on the difference of |cos|.
     pub sigma_d: f64,
     /// Distance metric tolerance: σ_abs + σ_rel·length, where σ_abs = `sigma_spread` × the
@@ -200,7 +85,7 @@ pub struct SpectralParams {
 impl Default for SpectralParams {
     fn default() -> Self {
         Self {
-            metric: ConsistencyMetric::Distance,
+            metric: PairMetric::Distance,
             sigma_d: 0.2,
             sigma_spread: 0.05,
             sigma_rel: 0.1,
@@ -327,7 +212,7 @@ impl Rejector for SpectralRejector {
         self.map.clear();
         self.map.extend(self.index.iter().map(|&i| geometry.map_points[i]));
         match self.params.metric {
-            ConsistencyMetric::Angle => {
+            PairMetric::Angle => {
                 // Outliers drag the centroids of eq. (5) apart, which blurs θ for inliers too;
                 // a second pass centres both clouds on the first pass's likely inliers.
                 angle_consistency(&self.image, &self.map, None, self.params.sigma_d, &mut self.theta);
@@ -337,7 +222,7 @@ impl Rejector for SpectralRejector {
                     angle_consistency(&self.image, &self.map, Some(&weights), self.params.sigma_d, &mut self.theta);
                 }
             }
-            ConsistencyMetric::Distance => distance_consistency(
+            PairMetric::Distance => distance_consistency(
                 &self.image,
                 &self.map,
                 self.params.sigma_spread * spread(&self.map),
@@ -373,8 +258,8 @@ pub fn top_k(scores: &[f32], k: usize) -> Vec<usize> {
 mod tests {
     use super::*;
     use crate::frame::Correspondence;
-    use crate::geometry::DepthImage;
-    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    use crate::geometry::{DepthImage, Intrinsics};
+    use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion};
 
     /// A frame of a fronto-parallel-ish scene: inliers consistent with a pose and a prior of
     /// known scale/shift, outliers with random map points.
@@ -388,11 +273,8 @@ mod tests {
             .collect();
         let pose =
             Isometry3::from_parts(Translation3::new(1.0, 0.5, -0.2), UnitQuaternion::from_euler_angles(0.1, 0.7, -0.3));
-        let mut state = 12345u64;
-        let mut rnd = move || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut lcg = crate::rng::Lcg64(12345);
+        let mut rnd = move || lcg.next_f64();
         let mut truth = Vec::new();
         let correspondences = (0..n)
             .map(|i| {
@@ -438,7 +320,7 @@ mod tests {
 
     #[test]
     fn spectral_rejector_keeps_inliers() {
-        for metric in [ConsistencyMetric::Distance, ConsistencyMetric::Angle] {
+        for metric in [PairMetric::Distance, PairMetric::Angle] {
             let (f, truth) = frame(300, 90);
             let g = FrameGeometry::build(&f, DepthKind::Depth, Some(&ScaleShiftParams::default()));
             let mut r = SpectralRejector::new(SpectralParams { metric, ..SpectralParams::default() });
@@ -448,7 +330,7 @@ mod tests {
             let precision = top.iter().filter(|&&&i| truth[i]).count() as f64 / top.len() as f64;
             // The angle metric is the weaker one under 70 % outliers (their centroids are shared),
             // the aligned distance metric nearly exact: see the README's table.
-            let bar = if metric == ConsistencyMetric::Distance { 0.9 } else { 0.45 };
+            let bar = if metric == PairMetric::Distance { 0.9 } else { 0.45 };
             assert!(precision > bar, "{metric:?}: precision {precision}");
         }
     }

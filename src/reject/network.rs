@@ -8,101 +8,17 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use ort::session::Session;
-use ort::value::Tensor;
-use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
 
-use super::graph::{GraphParams, ThetaKind};
-use super::inputs::{build_inputs, IndexedMap, NetworkInputs};
+use super::inputs::{build_inputs, IndexedMap, NetworkInputs, TensorValues};
+pub use super::network_params::{KeypointRanking, NetworkParams};
 use super::{top_k, FrameGeometry, RejectError, Rejection, Rejector, SpectralParams, SpectralRejector};
-use crate::consistency::ScaleShiftParams;
 use crate::frame::MapCloud;
+use ort::session::{Session, SessionInputValue};
+use ort::value::Tensor;
 
 /// The library file this build expects (the `api-31` feature).
 pub const ONNXRUNTIME_LIBRARY: &str = "libonnxruntime.so.1.31.1";
-
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct NetworkParams {
-    /// The trained model (ONNX, one file).
-    pub model_path: String,
-    /// ONNX Runtime's shared library; empty: `ORT_DYLIB_PATH`, then `.ort/` + the library name.
-    pub onnxruntime_path: String,
-    /// Keep correspondences with score ≥ τ …
-    pub tau: f64,
-    /// … but at least this many (the best ones), so PnP always has material.
-    pub min_keep: usize,
-    /// Intra-op threads of the session (1: one core per node instance).
-    pub intra_threads: usize,
-    /// K, M, the θ kind and σ_d of the graphs (must match the training export).
-    pub neighbours: usize,
-    pub keypoints: usize,
-    pub theta: ThetaKind,
-    pub sigma_d: f64,
-    /// Align the prior's scale and shift before building features and graphs (the paper's
-    /// scale alignment); `false` is the ablation: raw prior, no eq. (8) rescaling either.
-    pub align_prior: bool,
-    /// Power-iteration steps of the spectral pass that ranks the keypoints (a ranking of the
-    /// top M settles long before the eigenvector converges).
-    pub keypoint_iterations: usize,
-    /// What ranks the M keypoints of the global graph.
-    pub keypoint_ranking: KeypointRanking,
-}
-
-/// How the global graph's keypoints are chosen (the paper takes P2-Net's top-M detections).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum KeypointRanking {
-    /// The spectral consistency score alone.
-    Spectral,
-    /// Spectral score × the matcher's confidence (clamped to [0, 1]): geometric agreement and
-    /// the matcher's own certainty, as a detector's score would add to it.
-    #[default]
-    SpectralMatcher,
-}
-
-impl Default for NetworkParams {
-    fn default() -> Self {
-        let g = GraphParams::default();
-        Self {
-            model_path: "models/angle_i2p.onnx".into(),
-            onnxruntime_path: String::new(),
-            tau: 0.2,
-            min_keep: 12,
-            intra_threads: 1,
-            neighbours: g.neighbours,
-            keypoints: g.keypoints,
-            theta: g.theta,
-            sigma_d: g.sigma_d,
-            align_prior: true,
-            keypoint_iterations: 4,
-            keypoint_ranking: KeypointRanking::default(),
-        }
-    }
-}
-
-impl NetworkParams {
-    /// The graphs' parameters.
-    pub fn graph(&self) -> GraphParams {
-        GraphParams {
-            neighbours: self.neighbours,
-            keypoints: self.keypoints,
-            theta: self.theta,
-            sigma_d: self.sigma_d,
-            ..GraphParams::default()
-        }
-    }
-
-    /// The spectral pass that ranks the keypoints.
-    pub fn keypoint_spectral(&self, spectral: SpectralParams) -> SpectralParams {
-        SpectralParams { iterations: self.keypoint_iterations, ..spectral }
-    }
-
-    /// The prior alignment the network's inputs are built with.
-    pub fn alignment<'a>(&self, align: &'a ScaleShiftParams) -> Option<&'a ScaleShiftParams> {
-        self.align_prior.then_some(align)
-    }
-}
 
 #[derive(Debug, Clone, thiserror::Error)]
 pub enum NetworkError {
@@ -189,23 +105,21 @@ impl NetworkRejector {
     /// The network's scores for prepared inputs.
     pub fn run(&mut self, inputs: &NetworkInputs) -> Result<Vec<f32>, RejectError> {
         let n = inputs.features.len();
-        let g = &inputs.graphs;
-        let m = g.global_index.len();
         let fail = |e: ort::Error| RejectError::Failed(format!("network: {e}"));
-        let index = |v: &[u32]| v.iter().map(|&i| i as i64).collect::<Vec<i64>>();
-        let features: Vec<f32> = inputs.features.iter().flatten().copied().collect();
-        let mut values = ort::inputs![
-            "features" => Tensor::from_array(([n, 24], features)).map_err(fail)?,
-            "local_index" => Tensor::from_array(([g.nodes, g.neighbours], index(&g.local_index))).map_err(fail)?,
-            "local_theta" => Tensor::from_array(([g.nodes, g.neighbours, g.neighbours], g.local_theta.clone())).map_err(fail)?,
-            "global_index" => Tensor::from_array(([m], index(&g.global_index))).map_err(fail)?,
-            "global_theta" => Tensor::from_array(([m, m], g.global_theta.clone())).map_err(fail)?,
-            "cross_theta" => Tensor::from_array(([n, m], g.cross_theta.clone())).map_err(fail)?,
-            "matcher_score" => Tensor::from_array(([n], inputs.matcher_scores.clone())).map_err(fail)?,
-        ];
-        // Each model takes the inputs it declares: one without global attention (the ablation)
-        // has no global ones, one trained without the matcher's confidence has no `matcher_score`.
-        values.retain(|(name, _)| self.session.inputs().iter().any(|i| i.name() == name.as_ref()));
+        let mut values: Vec<(Cow<'static, str>, SessionInputValue<'static>)> = Vec::new();
+        for t in inputs.tensors() {
+            // Each model takes the inputs it declares: one without global attention (the
+            // ablation) has no global ones, one trained without the matcher's confidence has no
+            // `matcher_score`.
+            if !self.session.inputs().iter().any(|i| i.name() == t.name) {
+                continue;
+            }
+            let value: SessionInputValue<'static> = match t.values {
+                TensorValues::F32(v) => Tensor::from_array((t.shape, v)).map_err(fail)?.into(),
+                TensorValues::I64(v) => Tensor::from_array((t.shape, v)).map_err(fail)?.into(),
+            };
+            values.push((Cow::Borrowed(t.name), value));
+        }
         let outputs = self.session.run(values).map_err(fail)?;
         let (_, scores) = outputs["score"].try_extract_tensor::<f32>().map_err(fail)?;
         if scores.len() != n {

@@ -22,6 +22,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::frame::{EncodedImage, Frame, GroundTruth, MapCloud, Stamp};
 use crate::geometry::{DepthImage, Intrinsics, PointIndex};
+use crate::rng::mix64;
 
 pub use corr::CorrLabel;
 pub use prior::{depth_prior, Prior, PriorParams};
@@ -415,7 +416,7 @@ pub fn inlier_mask(frame: &Frame, threshold_m: f64) -> Vec<bool> {
 /// Generates a scene, deterministically for `config.seed`.
 pub fn generate(config: &SynthConfig) -> SynthScene {
     let config = config.sanitized();
-    let mut rng = StdRng::seed_from_u64(scene::mix64(config.seed ^ 0x05EE_D0F5_CE1E));
+    let mut rng = StdRng::seed_from_u64(mix64(config.seed ^ 0x05EE_D0F5_CE1E));
     let [l, w, h] = config.room_size;
     let scene = Scene::room(Vector3::new(l, w, h), &mut rng);
     let map = map_cloud(&scene, &config, &mut rng);
@@ -554,8 +555,8 @@ pub(crate) struct Render {
 impl FrameContext<'_> {
     fn frame(&self, k: usize) -> (Frame, FrameStats) {
         let c = self.config;
-        let mut rng = StdRng::seed_from_u64(scene::mix64(
-            c.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ scene::mix64(k as u64 + 1),
+        let mut rng = StdRng::seed_from_u64(mix64(
+            c.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ mix64(k as u64 + 1),
         ));
         let intrinsics = c.intrinsics();
         let pose = self.path.pose(k);
@@ -656,7 +657,7 @@ impl FrameContext<'_> {
                 let col = self.scene.shade(&p, &hit, &origin);
                 // Linear → sRGB-ish gamma, plus a little deterministic sensor noise.
                 let noise =
-                    (scene::mix64((i as u64) ^ self.scene.texture_seed ^ (self.config.seed << 20)) % 7) as f64 - 3.0;
+                    (mix64((i as u64) ^ self.scene.texture_seed ^ (self.config.seed << 20)) % 7) as f64 - 3.0;
                 for ch in 0..3 {
                     rgb[i * 3 + ch] = (col[ch].powf(1.0 / 2.2) * 255.0 + noise).round().clamp(0.0, 255.0) as u8;
                 }

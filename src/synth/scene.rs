@@ -12,6 +12,8 @@ use parry3d::shape::Cuboid;
 use rand::rngs::StdRng;
 use rand::RngExt;
 
+use crate::rng::mix64;
+
 /// How a surface is textured in the camera image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Texture {
@@ -353,13 +355,6 @@ pub fn to_parry_pose(iso: &Isometry3<f64>) -> Pose {
     let q = iso.rotation.quaternion();
     let t: &Translation3<f64> = &iso.translation;
     Pose::from_parts(v3(t.x, t.y, t.z), Rot3::from_xyzw(q.i as f32, q.j as f32, q.k as f32, q.w as f32).normalize())
-}
-
-/// 64-bit mix (splitmix64 finaliser).
-pub(crate) fn mix64(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
 }
 
 fn lattice(ix: i64, iy: i64, seed: u64) -> f64 {

@@ -6,7 +6,8 @@
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::PriorSpace;
+use super::PriorSpace;
+use crate::rng::SplitMix64;
 
 /// The prior's affine map to metric depth: in [`PriorSpace::Depth`] depth = `scale`·x + `shift`,
 /// in [`PriorSpace::Disparity`] 1/depth = `scale`·x + `shift` (x = the prior coordinate,
@@ -356,23 +357,6 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
     Some(*m)
 }
 
-/// A tiny deterministic generator for pair sampling (SplitMix64).
-pub(crate) struct SplitMix64(pub(crate) u64);
-
-impl SplitMix64 {
-    pub(crate) fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    pub(crate) fn below(&mut self, n: usize) -> usize {
-        ((self.next() >> 11) as f64 / (1u64 << 53) as f64 * n as f64) as usize % n.max(1)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -380,7 +364,7 @@ mod tests {
 
     fn scene(seed: u64, n: usize) -> (Vec<Point3<f64>>, Vec<Point3<f64>>) {
         let mut rng = SplitMix64(seed);
-        let mut u = || rng.next() as f64 / u64::MAX as f64;
+        let mut u = || rng.next_u64() as f64 / u64::MAX as f64;
         let cam: Vec<_> = (0..n).map(|_| Point3::new(u() * 4.0 - 2.0, u() * 3.0 - 1.5, 1.0 + u() * 4.0)).collect();
         let pose =
             Isometry3::from_parts(Translation3::new(0.3, -0.2, 1.0), UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3));
@@ -393,7 +377,7 @@ mod tests {
         let mut rng = SplitMix64(99);
         let count = prior.len() * 3 / 5;
         for d in prior.iter_mut().take(count) {
-            *d = lo + (hi - lo) * rng.next() as f64 / u64::MAX as f64;
+            *d = lo + (hi - lo) * rng.next_u64() as f64 / u64::MAX as f64;
         }
     }
 

@@ -1,0 +1,136 @@
+//! The candidate pool of verified robust estimation: the best distinct hypotheses by coverage
+//! cost, and the verifier that chooses among them (see [`Verification`]). Two hypotheses are one
+//! when most of the smaller inlier set is shared: the cluster keeps its best.
+
+use super::evaluator::Evaluator;
+use super::scorer::{Bound, Hypothesis};
+use super::{Agreement, MapToCamera, Verification};
+
+/// A hypothesis kept for verification.
+struct Candidate {
+    /// Its `inliers` are the geometric inliers (before any prior check), which the cluster test
+    /// compares; `support` is its cells.
+    hypothesis: Hypothesis,
+    /// Inlier positions as a bit set, for the cluster test.
+    members: Vec<u64>,
+    /// The verifier's agreement once verified (after local optimisation).
+    agreement: Option<Agreement>,
+}
+
+pub(crate) struct Pool<'a> {
+    pub verification: Verification<'a>,
+    /// Each candidate is locally optimised before it is verified.
+    local_optimize: bool,
+    items: Vec<Candidate>,
+}
+
+impl<'a> Pool<'a> {
+    pub(crate) fn new(verification: Verification<'a>, local_optimize: bool) -> Self {
+        Self { verification, local_optimize, items: Vec::with_capacity(verification.candidates + 1) }
+    }
+
+    fn is_full(&self) -> bool {
+        self.items.len() >= self.verification.candidates
+    }
+
+    /// Index of the candidate with the highest (`worst`) or lowest cost.
+    fn extreme(&self, worst: bool) -> Option<usize> {
+        let by_cost = |&a: &usize, &b: &usize| self.items[a].hypothesis.cost.total_cmp(&self.items[b].hypothesis.cost);
+        let indices = 0..self.items.len();
+        if worst {
+            indices.max_by(by_cost)
+        } else {
+            indices.min_by(by_cost)
+        }
+    }
+
+    /// What a hypothesis must beat to enter: the worst kept once full.
+    pub(crate) fn bound(&self) -> Bound {
+        match self.extreme(true) {
+            Some(w) if self.is_full() => Bound::of(&self.items[w].hypothesis),
+            _ => Bound::NONE,
+        }
+    }
+
+    /// Offers a hypothesis with its (geometric) inlier positions among `n`.
+    pub(crate) fn offer(&mut self, hypothesis: &Hypothesis, inliers: &[usize], n: usize) {
+        let mut members = vec![0u64; n.div_ceil(64)];
+        for &i in inliers {
+            members[i / 64] |= 1 << (i % 64);
+        }
+        let hypothesis = Hypothesis { inliers: inliers.len(), ..*hypothesis };
+        let candidate = Candidate { hypothesis, members, agreement: None };
+        let cost = hypothesis.cost;
+        if let Some(same) = self.items.iter_mut().find(|c| same_cluster(c, &candidate)) {
+            if cost < same.hypothesis.cost {
+                *same = candidate;
+            }
+            return;
+        }
+        if self.is_full() {
+            match self.extreme(true) {
+                Some(w) if cost < self.items[w].hypothesis.cost => {
+                    self.items.swap_remove(w);
+                }
+                _ => return,
+            }
+        }
+        self.items.push(candidate);
+    }
+
+    /// The agreement of candidate `i`, verified once: after local optimisation (optional).
+    fn verify(&mut self, i: usize, evaluator: &mut Evaluator) -> Agreement {
+        let c = &mut self.items[i];
+        if let Some(agreement) = c.agreement {
+            return agreement;
+        }
+        if self.local_optimize {
+            let lo = evaluator.local_optimization(c.hypothesis);
+            // The cluster test keeps comparing the inliers it was offered with.
+            c.hypothesis = Hypothesis { inliers: c.hypothesis.inliers, ..lo };
+        }
+        let agreement = self.verification.verifier.verify(&c.hypothesis.pose.to_camera_to_map());
+        c.agreement = Some(agreement);
+        agreement
+    }
+
+    /// Verifies every candidate; the best in-view agreement.
+    pub(crate) fn verify_all(&mut self, evaluator: &mut Evaluator) -> f64 {
+        let min_view = self.verification.min_view;
+        (0..self.items.len()).map(|i| self.verify(i, evaluator).in_view_share(min_view)).fold(0.0, f64::max)
+    }
+
+    /// Verifies the lowest-cost candidate alone; its in-view agreement.
+    pub(crate) fn verify_best(&mut self, evaluator: &mut Evaluator) -> f64 {
+        let min_view = self.verification.min_view;
+        self.extreme(false).map_or(0.0, |i| self.verify(i, evaluator).in_view_share(min_view))
+    }
+
+    /// The best in-view agreement of any verified candidate: how far the frame's evidence can be
+    /// trusted.
+    fn trust(&self) -> f64 {
+        let min_view = self.verification.min_view;
+        self.items.iter().filter_map(|c| c.agreement).map(|a| a.in_view_share(min_view)).fold(0.0, f64::max)
+    }
+
+    /// The verified candidate with the most agreement + `coverage_weight`·cells / most cells;
+    /// when no candidate reaches `min_trust`, the lowest-cost one (geometry alone).
+    pub(crate) fn choose(&self) -> Option<MapToCamera> {
+        if self.trust() < self.verification.min_trust {
+            return self.extreme(false).map(|i| self.items[i].hypothesis.pose);
+        }
+        let most_cells = self.items.iter().map(|c| c.hypothesis.support).max()?.max(1) as f64;
+        let weight = self.verification.coverage_weight;
+        self.items
+            .iter()
+            .filter_map(|c| Some((c.agreement?.share() + weight * c.hypothesis.support as f64 / most_cells, c)))
+            .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.hypothesis.cost.total_cmp(&a.1.hypothesis.cost)))
+            .map(|(_, c)| c.hypothesis.pose)
+    }
+}
+
+/// Whether two candidates share more than half of the smaller inlier set.
+fn same_cluster(a: &Candidate, b: &Candidate) -> bool {
+    let shared: u32 = a.members.iter().zip(&b.members).map(|(x, y)| (x & y).count_ones()).sum();
+    2 * shared as usize > a.hypothesis.inliers.min(b.hypothesis.inliers)
+}
