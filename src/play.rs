@@ -11,8 +11,8 @@ use ros2_client::{Node, Publisher, QosProfile};
 
 use crate::bag::BagReader;
 use crate::msgs::{self, from_cdr, RosMessage};
-use crate::node::args::{Names, RosArgs};
 use crate::node::dds;
+use crate::params::{Names, RosArgs};
 
 #[derive(clap::Args, Clone, Debug)]
 pub struct PlayArgs {

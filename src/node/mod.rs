@@ -14,7 +14,6 @@
 //! parts, frames before any map) is counted by reason in `/diagnostics` and logged; the node
 //! keeps going. Topics are the [`crate::bag::TopicMap`]'s, resolved with `--ros-args` remaps.
 
-pub mod args;
 pub mod dds;
 pub mod diagnostics;
 pub mod health;
@@ -29,12 +28,14 @@ pub mod services;
 pub mod tf;
 mod topics;
 
-pub use args::{resolve_params, ArgsError, LogLevel, MapQos, Names, NodeParams, ResolvedParams, RosArgs};
+pub use crate::params::{ArgsError, LogLevel, MapQos, Names, NodeParams, RosArgs};
 pub use diagnostics::{status_name, status_value, Stats, LOCALIZATION_TASK};
 pub use queue::DropOldestQueue;
 pub use run::run_node;
 
 use std::path::PathBuf;
+
+use crate::params;
 
 /// Default node name.
 pub const NODE_NAME: &str = "angle_i2p";
@@ -55,9 +56,9 @@ pub struct NodeConfig {
 pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     let args = RosArgs::parse(&config.ros_args)?;
     let names = Names::new(NODE_NAME, &args);
-    let mut resolved = resolve_params(config.params_file.as_deref(), &args, &names)?;
+    let mut resolved = params::resolve(&params::Layers { names: &names, params_file: config.params_file.as_deref(), ros_args: &args })?;
     if let Some(dirs) = std::env::current_exe().ok().as_deref().and_then(install::InstallDirs::of_binary) {
-        for change in dirs.resolve(&mut resolved.params) {
+        for change in dirs.resolve(&mut resolved.localizer) {
             eprintln!("[angle_i2p] installed package: {change}");
         }
     }

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
-use crate::params::Params;
+use crate::params::LocalizerParams;
 use crate::pnp::{solve_pnp_ransac_guided, Guidance, PnpError, PnpSolution};
 use crate::reject::network::NetworkRejector;
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
@@ -120,7 +120,7 @@ pub struct Localization {
 
 /// Localizes frames; holds the reusable per-frame buffers.
 pub struct Localizer {
-    params: Params,
+    params: LocalizerParams,
     rejector: Option<Box<dyn Rejector>>,
     /// Why the method's rejector could not be set up (every frame then fails with it).
     setup_error: Option<String>,
@@ -129,7 +129,7 @@ pub struct Localizer {
 }
 
 impl Localizer {
-    pub fn new(params: Params) -> Self {
+    pub fn new(params: LocalizerParams) -> Self {
         let mut setup_error = None;
         let rejector: Option<Box<dyn Rejector>> = match params.method {
             Method::Ransac => None,
@@ -162,7 +162,7 @@ impl Localizer {
         };
     }
 
-    pub fn params(&self) -> &Params {
+    pub fn params(&self) -> &LocalizerParams {
         &self.params
     }
 
