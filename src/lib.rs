@@ -23,5 +23,4 @@ pub mod pnp;
 pub mod reject;
 pub mod report;
 pub mod synth;
-pub mod validate;
 pub mod verify;

@@ -9,6 +9,7 @@ pub mod resolve;
 pub mod ros_args;
 mod topics;
 pub mod tree;
+pub mod validate;
 
 use serde::{Deserialize, Serialize};
 
@@ -25,6 +26,7 @@ pub use node::{MapQos, NodeParams};
 pub use resolve::{resolve, resolve_cli, Layers, ResolveError};
 pub use ros_args::{ArgsError, LogLevel, Names, ParamOverride, Remap, RosArgs, DEFAULT_NODE_NAME};
 pub use topics::TopicMap;
+pub use validate::InvalidParam;
 
 /// What the localizer (the pure core) is configured with.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]

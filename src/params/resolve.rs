@@ -1,7 +1,7 @@
 //! One resolution of the parameters for the CLI and the node alike. Layers, later ones
 //! winning: defaults < the command's params file < `--ros-args --params-file` (in order) <
 //! `-p name:=value` (in order). Unknown names are errors (typos do not pass silently), and the
-//! result is validated ([`crate::validate`]) before anyone uses it.
+//! result is validated ([`super::validate`]) before anyone uses it.
 
 use std::path::{Path, PathBuf};
 
@@ -9,8 +9,8 @@ use serde_yaml::Value;
 
 use super::ros_args::{ArgsError, Names, RosArgs, DEFAULT_NODE_NAME};
 use super::tree::{deep_merge, dotted, undot};
+use super::validate::InvalidParam;
 use super::{AppParams, NodeParams};
-use crate::validate::InvalidParam;
 
 /// Where the parameters come from, lowest first (the defaults are below them all).
 #[derive(Clone, Copy, Debug)]

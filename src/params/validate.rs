@@ -2,7 +2,7 @@
 //! outside it stops the command with an error naming the key, the value and the valid range,
 //! instead of failing every frame later (or panicking: `network.neighbours: 0` divides by it).
 
-use crate::params::{AppParams, LocalizerParams};
+use super::{AppParams, LocalizerParams};
 
 /// A parameter outside its valid range.
 #[derive(Debug, thiserror::Error, PartialEq)]
