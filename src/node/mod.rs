@@ -56,7 +56,8 @@ pub struct NodeConfig {
 pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     let args = RosArgs::parse(&config.ros_args)?;
     let names = Names::new(NODE_NAME, &args);
-    let mut resolved = params::resolve(&params::Layers { names: &names, params_file: config.params_file.as_deref(), ros_args: &args })?;
+    let layers = params::Layers { names: &names, params_file: config.params_file.as_deref(), ros_args: &args };
+    let mut resolved = params::resolve(&layers)?;
     if let Some(dirs) = std::env::current_exe().ok().as_deref().and_then(install::InstallDirs::of_binary) {
         for change in dirs.resolve(&mut resolved.localizer) {
             eprintln!("[angle_i2p] installed package: {change}");

@@ -12,7 +12,6 @@ use futures::StreamExt;
 use ros2_client::{Publisher, Subscription};
 use tokio::sync::mpsc;
 
-use crate::params::{AppParams, LogLevel, MapQos, Names, NodeParams};
 use super::dds;
 use super::diagnostics::Stats;
 use super::health::Health;
@@ -27,6 +26,7 @@ pub use super::topics::Topics;
 use crate::bag::BagWriter;
 use crate::frame::{Assembled, Frame, FrameAssembler, FramePart, IncompleteFrame, MapCloud, PartKind, Stamp};
 use crate::msgs::{self, convert, RosMessage};
+use crate::params::{AppParams, LogLevel, MapQos, Names, NodeParams};
 use crate::pipeline::{Localization, Localizer, Method};
 
 /// The node's `--log-level` (`LogLevel as u8`; info by default).

@@ -8,8 +8,8 @@
 //! given. `/diagnostics`, `/tf` and `/tf_static` stay absolute, as `diagnostic_updater` and
 //! tf2 have them (remap them, e.g. `-r /tf:=tf`, to keep them per robot).
 
-use crate::params::{AppParams, Names};
 use crate::bag::TopicMap;
+use crate::params::{AppParams, Names};
 
 /// Resolved topic names of the node.
 #[derive(Clone, Debug)]
