@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use angle_i2p::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix, ScaleShiftParams};
 use angle_i2p::geometry::DepthKind;
-use angle_i2p::params::Params;
+use angle_i2p::params::LocalizerParams;
 use angle_i2p::pipeline::{Localizer, Method};
 use angle_i2p::reject::network::{NetworkParams, NetworkRejector};
 use angle_i2p::reject::{FrameGeometry, Rejector, SpectralParams, SpectralRejector};
@@ -98,7 +98,7 @@ fn bench(c: &mut Criterion) {
             (Method::AngleI2p, plain, "_no_verify"),
         ];
         for (method, verify, suffix) in runs {
-            let mut localizer = match Localizer::new(Params { method, verify, ..Params::default() }) {
+            let mut localizer = match Localizer::new(LocalizerParams { method, verify, ..LocalizerParams::default() }) {
                 Ok(localizer) => localizer,
                 Err(e) => {
                     eprintln!("skipping {}: {e}", method.name());

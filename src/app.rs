@@ -10,13 +10,29 @@ use nalgebra::Isometry3;
 use crate::bag::{BagFrames, BagMessages, BagWriter, FrameStream, ReadOptions, TopicMap};
 use crate::eval::{inlier_mask, inlier_ratio, pose_errors, summarize, FrameMetrics, Summary};
 use crate::frame::{Assembled, Correspondence, IncompleteFrame, Stamp};
+use crate::limits::InputLimits;
 use crate::msgs::{self, convert, from_cdr, DiagnosticArray, DiagnosticStatus, Header, KeyValue};
+use crate::params::AppParams;
 use crate::pipeline::{Localization, Localizer};
 
 /// Topic of the per-frame diagnostics written by `replay` (timings, method, failure reason).
 pub const DIAGNOSTICS_TOPIC: &str = "/diagnostics";
 /// Name of the diagnostics status that carries one frame's localization report.
 pub const STATUS_NAME: &str = "angle_i2p: localization";
+
+/// How a command reads and writes bags: the topic names and the input limits.
+#[derive(Clone, Copy, Debug)]
+pub struct BagEdge<'a> {
+    pub topics: &'a TopicMap,
+    pub limits: &'a InputLimits,
+}
+
+impl<'a> BagEdge<'a> {
+    /// The bag edge of resolved parameters.
+    pub fn of(params: &'a AppParams) -> Self {
+        Self { topics: &params.topics, limits: &params.limits }
+    }
+}
 
 /// What a replay did.
 pub struct ReplayReport {
@@ -56,11 +72,11 @@ pub fn replay(
     input: &Path,
     output: &Path,
     localizer: &mut Localizer,
-    topics: &TopicMap,
+    edge: BagEdge,
     mut on_frame: impl FnMut(&FrameProgress),
 ) -> Result<ReplayReport> {
-    let limits = localizer.params().limits.clone();
-    let mut stream = FrameStream::open(input, topics, &limits)?;
+    let topics = edge.topics;
+    let mut stream = FrameStream::open(input, topics, edge.limits)?;
     if let Some(map) = stream.map.take() {
         localizer.set_map(&map);
     }
@@ -246,7 +262,7 @@ fn reason_class(message: &str) -> String {
 /// input once. Every frame of the input (every stamp with a correspondences message) counts:
 /// one dropped for bad input, one the method failed on and one missing from the output are
 /// all not registered in RR, and `no_pose` says how many of each.
-pub fn evaluate_bags(input: &Path, ests: &[std::path::PathBuf], params: &crate::params::Params) -> Result<EvalRun> {
+pub fn evaluate_bags(input: &Path, ests: &[std::path::PathBuf], params: &AppParams) -> Result<EvalRun> {
     let topics = &params.topics;
     let mut estimates = Vec::with_capacity(ests.len());
     for e in ests {
@@ -337,14 +353,15 @@ pub struct ExportReport {
 /// `global_index` (M), `global_theta` (M×M), `cross_theta` (N×M), `spectral` (N), `labels` (N:
 /// 1 inlier, 0 outlier, −1 no ground-truth depth; the 5 cm rule of `eval`) and `correspondences`
 /// (N×6: u, v, x, y, z, score).
-pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) -> Result<ExportReport> {
+pub fn export_samples(input: &Path, out: &Path, params: &AppParams) -> Result<ExportReport> {
     use crate::npy;
     use crate::reject::inputs::{build_inputs, IndexedMap, TensorValues};
     use crate::reject::{FrameGeometry, SpectralRejector};
 
     let mut stream = FrameStream::open(input, &params.topics, &params.limits)?;
     let map = stream.map.take().map(|m| IndexedMap::new(m.points));
-    let mut spectral = SpectralRejector::new(params.network.keypoint_spectral(params.spectral.clone()));
+    let core = &params.localizer;
+    let mut spectral = SpectralRejector::new(core.network.keypoint_spectral(core.spectral.clone()));
     let mut report = ExportReport { samples: 0, skipped: Vec::new() };
     while let Some(item) = stream.next_frame()? {
         let frame = match item {
@@ -364,8 +381,8 @@ pub fn export_samples(input: &Path, out: &Path, params: &crate::params::Params) 
             report.skipped.push(format!("frame {}: no depth prior or no correspondences", frame.stamp));
             continue;
         }
-        let geometry = FrameGeometry::build(&frame, params.depth_kind, params.network.alignment(&params.align));
-        let inputs = build_inputs(&geometry, map.as_ref(), &mut spectral, &params.network);
+        let geometry = FrameGeometry::build(&frame, core.depth_kind, core.network.alignment(&core.align));
+        let inputs = build_inputs(&geometry, map.as_ref(), &mut spectral, &core.network);
         let labels: Vec<f32> = inlier_mask(&frame.correspondences, &frame.intrinsics, gt_pose, gt_depth)
             .into_iter()
             .map(|(inlier, valid)| {

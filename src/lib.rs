@@ -25,5 +25,4 @@ pub mod reject;
 pub mod report;
 pub mod rng;
 pub mod synth;
-pub mod validate;
 pub mod verify;

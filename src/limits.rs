@@ -21,6 +21,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::frame::{Correspondence, MapCloud};
 
+/// Default `max_record_bytes` (and `bag::ReadOptions`'): 256 MiB (an 8192 × 8192 32FC1 image
+/// and its header).
+pub const DEFAULT_MAX_RECORD_BYTES: u64 = 256 << 20;
+
 /// The `limits` section of the parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -46,7 +50,7 @@ impl Default for InputLimits {
             max_correspondences: 5000,
             max_image_side: 8192,
             max_map_points: 5_000_000,
-            max_record_bytes: crate::bag::DEFAULT_MAX_RECORD_BYTES,
+            max_record_bytes: DEFAULT_MAX_RECORD_BYTES,
             max_pending_frames: 256,
             merge_duplicates_above: 0.25,
         }

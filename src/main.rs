@@ -7,11 +7,11 @@ use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use angle_i2p::app::{self, describe};
+use angle_i2p::app::{self, describe, BagEdge};
 use angle_i2p::bag::write_input_bag;
-use angle_i2p::eval::{format_table, median};
-use angle_i2p::params::Params;
-use angle_i2p::pipeline::{Localizer, Method};
+use angle_i2p::eval::{format_table, median, Summary};
+use angle_i2p::params::{resolve_cli, AppParams, TopicMap};
+use angle_i2p::pipeline::{Localization, Localizer, Method};
 use angle_i2p::synth::{generate, SynthConfig, PRESETS};
 
 #[derive(Parser)]
@@ -140,130 +140,14 @@ fn main() -> ExitCode {
     }
 }
 
-fn load_params(path: Option<&Path>) -> Result<Params> {
-    load_params_with(path, &[])
-}
-
-/// Defaults < params file < `-p NAME:=VALUE` overrides, resolved as the node resolves them.
-fn load_params_with(path: Option<&Path>, overrides: &[String]) -> Result<Params> {
-    let mut tokens = vec!["--ros-args".to_string()];
-    for o in overrides {
-        tokens.extend(["-p".to_string(), o.clone()]);
-    }
-    let args = angle_i2p::node::RosArgs::parse(&tokens)?;
-    let names = angle_i2p::node::Names::new("angle_i2p", &args);
-    Ok(angle_i2p::node::resolve_params(path, &args, &names)?.params)
-}
-
-/// `eval --report DIR`: the evaluations' plots and page (see `angle_i2p::report`).
-fn write_report(
-    bag: &Path,
-    input: &angle_i2p::bag::BagFrames,
-    params: &Params,
-    raw: &angle_i2p::eval::Summary,
-    evaluations: &[app::Evaluation],
-    est: &[PathBuf],
-    dir: &Path,
-) -> Result<()> {
-    use angle_i2p::report::{MethodRun, ReportInput};
-    let runs = evaluations
-        .iter()
-        .zip(est)
-        .map(|(ev, e)| MethodRun { label: ev.method.clone(), est: e.clone(), evaluation: ev })
-        .collect();
-    let report_input = ReportInput { bag_path: bag, bag: input, topics: &params.topics, raw, runs };
-    let files = angle_i2p::report::write_report(&report_input, dir)
-        .with_context(|| format!("writing the report into {}", dir.display()))?;
-    eprintln!("report: {} files → {}", files.files.len(), dir.join("index.html").display());
-    Ok(())
-}
-
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Replay { bag, out, method, params_file, param, verbose } => {
-            let mut params = load_params_with(params_file.as_deref(), &param)?;
+            let mut params = resolve_cli(params_file.as_deref(), &param)?;
             if let Some(m) = method {
-                params.method = m;
+                params.localizer.method = m;
             }
-            let topics = params.topics.clone();
-            let method = params.method;
-            let mut localizer = Localizer::new(params).map_err(|e| anyhow::anyhow!("method {}: {e}", method.name()))?;
-            let bar = ProgressBar::new(0).with_style(
-                ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} frames, {per_sec} {msg}")
-                    .unwrap_or_else(|_| ProgressStyle::default_bar())
-                    .progress_chars("=> "),
-            );
-            bar.set_prefix(format!("replay {}", localizer.params().method.name()));
-            let (mut scored, mut registered) = (0usize, 0usize);
-            let report = app::replay(&bag, &out, &mut localizer, &topics, |progress| {
-                let loc = progress.localization;
-                bar.set_length(progress.expected as u64);
-                bar.set_position(progress.index as u64 + 1);
-                if let Some(r) = progress.registered {
-                    scored += 1;
-                    registered += r as usize;
-                }
-                let rr = (scored > 0)
-                    .then(|| format!(", RR {:.1} % ({registered}/{scored})", 100.0 * registered as f64 / scored as f64))
-                    .unwrap_or_default();
-                bar.set_message(format!("{:.2} ms{rr}", loc.timings.total_ms));
-                if verbose {
-                    let line = format!(
-                        "frame {}: {} kept, {} inliers, {} hypotheses, {:.2} ms (fast path {:.2}, geometry {:.2}, reject {:.2}, \
-                         pnp {:.2}){}{}{}",
-                        loc.stamp,
-                        loc.kept.len(),
-                        loc.num_inliers,
-                        loc.pnp_iterations,
-                        loc.timings.total_ms,
-                        loc.timings.fast_path_ms,
-                        loc.timings.geometry_ms,
-                        loc.timings.reject_ms,
-                        loc.timings.pnp_ms,
-                        match (loc.fast_path, &loc.fast_path_check) {
-                            (true, _) => ", settled by the fast path".to_string(),
-                            (false, Some(c)) => format!(
-                                ", fast path unsettled (inliers {:.2}, cells {:.2})",
-                                c.inlier_ratio, c.cell_share
-                            ),
-                            _ => String::new(),
-                        },
-                        loc.prior_quality.map(|q| format!(", prior quality {q:.2}")).unwrap_or_default(),
-                        loc.failure.as_ref().map(|f| format!(" — no pose: {f}")).unwrap_or_default()
-                    );
-                    if bar.is_hidden() {
-                        eprintln!("{line}")
-                    } else {
-                        bar.println(line)
-                    }
-                }
-            })?;
-            bar.finish_and_clear();
-            for f in &report.incomplete {
-                eprintln!("warning: {}", describe(f));
-            }
-            for issue in &report.issues {
-                eprintln!("warning: {issue}");
-            }
-            let ms: Vec<f64> = report.localizations.iter().map(|l| l.timings.total_ms).collect();
-            let posed = report.localizations.iter().filter(|l| l.pose.is_some()).count();
-            println!(
-                "{}: {} frames, {} with a pose, {} skipped; ms/frame median {:.2}, mean {:.2}, max {:.2} → {}",
-                localizer.params().method.name(),
-                report.localizations.len(),
-                posed,
-                report.incomplete.iter().filter(|f| f.dropped).count(),
-                median(&ms).unwrap_or(0.0),
-                angle_i2p::eval::mean(&ms).unwrap_or(0.0),
-                ms.iter().copied().fold(0.0, f64::max),
-                out.display()
-            );
-            for l in report.localizations.iter().filter(|l| l.failure.is_some()) {
-                if let Some(f) = &l.failure {
-                    eprintln!("frame {}: no pose: {f}", l.stamp);
-                }
-            }
-            Ok(())
+            replay(&bag, &out, &params, verbose)
         }
         Command::Node { params_file, record, ros_args } => {
             let ros_args = match ros_args {
@@ -278,7 +162,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Export { bag, out, params_file, param } => {
-            let params = load_params_with(params_file.as_deref(), &param)?;
+            let params = resolve_cli(params_file.as_deref(), &param)?;
             let report = app::export_samples(&bag, &out, &params)?;
             for s in &report.skipped {
                 eprintln!("warning: {s}");
@@ -286,119 +170,253 @@ fn run(cli: Cli) -> Result<()> {
             println!("{} samples → {}", report.samples, out.display());
             Ok(())
         }
-        Command::Diagnostics { bag } => {
-            let reader = angle_i2p::bag::BagReader::open(&bag)?;
-            let mut last = std::collections::BTreeMap::new();
-            for m in reader.messages().iter().filter(|m| m.topic() == app::DIAGNOSTICS_TOPIC) {
-                let msg: angle_i2p::msgs::DiagnosticArray = angle_i2p::msgs::from_cdr(&m.data)
-                    .with_context(|| format!("{}: /diagnostics at {}", bag.display(), m.log_time))?;
-                for status in msg.status {
-                    last.insert(status.name.clone(), status);
-                }
-            }
-            anyhow::ensure!(!last.is_empty(), "{}: no {} messages", bag.display(), app::DIAGNOSTICS_TOPIC);
-            for (name, status) in last {
-                println!("{name}: {}", status.message);
-                for kv in status.values {
-                    println!("  {} = {}", kv.key, kv.value);
-                }
-            }
-            Ok(())
-        }
+        Command::Diagnostics { bag } => print_diagnostics(&bag),
         Command::Params { params_file, param } => {
-            let params = load_params_with(params_file.as_deref(), &param)?;
-            let mut node = serde_yaml::Mapping::new();
-            node.insert("ros__parameters".into(), serde_yaml::to_value(&params)?);
-            let mut doc = serde_yaml::Mapping::new();
-            doc.insert("angle_i2p".into(), serde_yaml::Value::Mapping(node));
-            print!("{}", serde_yaml::to_string(&doc)?);
-            Ok(())
+            let params = resolve_cli(params_file.as_deref(), &param)?;
+            print_params_file(&params)
         }
         Command::Eval { bag, est, json, params_file, report } => {
-            let params = load_params(params_file.as_deref())?;
-            let run = app::evaluate_bags(&bag, &est, &params)?;
-            let mut rows = vec![("raw matches (IR only)".to_string(), run.raw.clone())];
-            let mut evaluations = run.evaluations;
-            // Rows of one method (variants of it) are told apart by their output directory.
-            let methods: Vec<String> = evaluations.iter().map(|ev| ev.method.clone()).collect();
-            for (ev, e) in evaluations.iter_mut().zip(&est) {
-                if methods.iter().filter(|m| **m == ev.method).count() > 1 {
-                    let dir =
-                        e.file_name().map_or_else(|| e.display().to_string(), |n| n.to_string_lossy().into_owned());
-                    ev.method = format!("{} ({dir})", ev.method);
-                }
-                rows.push((ev.method.clone(), ev.summary.clone()));
-            }
-            if json {
-                let obj: serde_json::Map<String, serde_json::Value> = evaluations
-                    .iter()
-                    .map(|ev| {
-                        let mut row = serde_json::to_value(&ev.summary)?;
-                        if let Some(o) = row.as_object_mut() {
-                            o.insert("no_pose".into(), serde_json::to_value(&ev.no_pose)?);
-                        }
-                        Ok((ev.method.clone(), row))
-                    })
-                    .collect::<Result<_>>()?;
-                println!("{}", serde_json::to_string_pretty(&obj)?);
-            } else {
-                println!("{}", bag.display());
-                print!("{}", format_table(&rows));
-                print!("{}", app::format_no_pose(&evaluations, run.without_ground_truth));
-            }
-            if let Some(dir) = report {
-                // The pictures need every frame at once (ground truth, images): read apart from
-                // the streaming evaluation, only when asked for.
-                let input = angle_i2p::bag::read_frames_limited(&bag, &params.topics, &params.limits)?;
-                write_report(&bag, &input, &params, &rows[0].1, &evaluations, &est, &dir)?;
-            }
-            Ok(())
+            let params = resolve_cli::<&str>(params_file.as_deref(), &[])?;
+            evaluate(&bag, &est, json, &params, report.as_deref())
         }
         Command::Synth { out, preset, config, seed, frames, inlier_ratio, correspondences, force } => {
             app::check_synth_out(&out, force)?;
-            let Some(mut cfg) = SynthConfig::preset(&preset) else {
-                bail!("unknown preset {preset:?}: one of {}", PRESETS.join(", "));
-            };
-            if let Some(path) = config {
-                let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-                // Fields of the file override the preset's.
-                let mut base = serde_yaml::to_value(&cfg)?;
-                let over: serde_yaml::Value =
-                    serde_yaml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
-                if let (Some(b), Some(o)) = (base.as_mapping_mut(), over.as_mapping()) {
-                    for (k, v) in o {
-                        b.insert(k.clone(), v.clone());
-                    }
-                }
-                cfg = serde_yaml::from_value(base).with_context(|| format!("{}", path.display()))?;
-            }
-            if let Some(s) = seed {
-                cfg.seed = s;
-            }
-            if let Some(f) = frames {
-                cfg.frames = f;
-            }
-            if let Some(r) = inlier_ratio {
-                cfg.inlier_ratio = r;
-            }
-            if let Some(n) = correspondences {
-                cfg.correspondences = n;
-            }
-            let scene = generate(&cfg);
-            if out.exists() {
-                std::fs::remove_dir_all(&out).with_context(|| format!("replacing {}", out.display()))?;
-            }
-            write_input_bag(&out, &Params::default().topics, &scene.map, &scene.frames)?;
-            let irs: Vec<f64> = scene.stats.iter().map(|s| s.inlier_ratio).collect();
-            println!(
-                "synth {preset} (seed {}): {} frames, {} map points, mean inlier ratio {:.3} → {}",
-                cfg.seed,
-                scene.frames.len(),
-                scene.map.points.len(),
-                angle_i2p::eval::mean(&irs).unwrap_or(0.0),
-                out.display()
-            );
-            Ok(())
+            let mut cfg = synth_config(&preset, config.as_deref())?;
+            cfg.seed = seed.unwrap_or(cfg.seed);
+            cfg.frames = frames.unwrap_or(cfg.frames);
+            cfg.inlier_ratio = inlier_ratio.unwrap_or(cfg.inlier_ratio);
+            cfg.correspondences = correspondences.unwrap_or(cfg.correspondences);
+            synth(&preset, &cfg, &out)
         }
     }
+}
+
+/// `replay`: every frame of `bag` through the localizer into the new bag `out`, with a progress bar.
+fn replay(bag: &Path, out: &Path, params: &AppParams, verbose: bool) -> Result<()> {
+    let method = params.localizer.method;
+    let mut localizer =
+        Localizer::new(params.localizer.clone()).map_err(|e| anyhow::anyhow!("method {}: {e}", method.name()))?;
+    let bar = ProgressBar::new(0).with_style(
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} frames, {per_sec} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(format!("replay {}", localizer.params().method.name()));
+    let (mut scored, mut registered) = (0usize, 0usize);
+    let report = app::replay(bag, out, &mut localizer, BagEdge::of(params), |progress| {
+        let loc = progress.localization;
+        bar.set_length(progress.expected as u64);
+        bar.set_position(progress.index as u64 + 1);
+        if let Some(r) = progress.registered {
+            scored += 1;
+            registered += r as usize;
+        }
+        let rr = (scored > 0)
+            .then(|| format!(", RR {:.1} % ({registered}/{scored})", 100.0 * registered as f64 / scored as f64))
+            .unwrap_or_default();
+        bar.set_message(format!("{:.2} ms{rr}", loc.timings.total_ms));
+        if verbose {
+            let line = frame_line(loc);
+            if bar.is_hidden() {
+                eprintln!("{line}")
+            } else {
+                bar.println(line)
+            }
+        }
+    })?;
+    bar.finish_and_clear();
+    print_replay_summary(&localizer, &report, out);
+    Ok(())
+}
+
+/// `replay --verbose`: one line per frame.
+fn frame_line(loc: &Localization) -> String {
+    let fast_path = match (loc.fast_path, &loc.fast_path_check) {
+        (true, _) => ", settled by the fast path".to_string(),
+        (false, Some(c)) => {
+            format!(", fast path unsettled (inliers {:.2}, cells {:.2})", c.inlier_ratio, c.cell_share)
+        }
+        _ => String::new(),
+    };
+    format!(
+        "frame {}: {} kept, {} inliers, {} hypotheses, {:.2} ms (fast path {:.2}, geometry {:.2}, reject {:.2}, \
+         pnp {:.2}){}{}{}",
+        loc.stamp,
+        loc.kept.len(),
+        loc.num_inliers,
+        loc.pnp_iterations,
+        loc.timings.total_ms,
+        loc.timings.fast_path_ms,
+        loc.timings.geometry_ms,
+        loc.timings.reject_ms,
+        loc.timings.pnp_ms,
+        fast_path,
+        loc.prior_quality.map(|q| format!(", prior quality {q:.2}")).unwrap_or_default(),
+        loc.failure.as_ref().map(|f| format!(" — no pose: {f}")).unwrap_or_default()
+    )
+}
+
+/// The warnings of a replay, its one-line summary and the frames without a pose.
+fn print_replay_summary(localizer: &Localizer, report: &app::ReplayReport, out: &Path) {
+    for f in &report.incomplete {
+        eprintln!("warning: {}", describe(f));
+    }
+    for issue in &report.issues {
+        eprintln!("warning: {issue}");
+    }
+    let ms: Vec<f64> = report.localizations.iter().map(|l| l.timings.total_ms).collect();
+    let posed = report.localizations.iter().filter(|l| l.pose.is_some()).count();
+    println!(
+        "{}: {} frames, {} with a pose, {} skipped; ms/frame median {:.2}, mean {:.2}, max {:.2} → {}",
+        localizer.params().method.name(),
+        report.localizations.len(),
+        posed,
+        report.incomplete.iter().filter(|f| f.dropped).count(),
+        median(&ms).unwrap_or(0.0),
+        angle_i2p::eval::mean(&ms).unwrap_or(0.0),
+        ms.iter().copied().fold(0.0, f64::max),
+        out.display()
+    );
+    for l in report.localizations.iter().filter(|l| l.failure.is_some()) {
+        if let Some(f) = &l.failure {
+            eprintln!("frame {}: no pose: {f}", l.stamp);
+        }
+    }
+}
+
+/// `diagnostics`: the last `/diagnostics` status of each name in a bag.
+fn print_diagnostics(bag: &Path) -> Result<()> {
+    let reader = angle_i2p::bag::BagReader::open(bag)?;
+    let mut last = std::collections::BTreeMap::new();
+    for m in reader.messages().iter().filter(|m| m.topic() == app::DIAGNOSTICS_TOPIC) {
+        let msg: angle_i2p::msgs::DiagnosticArray = angle_i2p::msgs::from_cdr(&m.data)
+            .with_context(|| format!("{}: /diagnostics at {}", bag.display(), m.log_time))?;
+        for status in msg.status {
+            last.insert(status.name.clone(), status);
+        }
+    }
+    anyhow::ensure!(!last.is_empty(), "{}: no {} messages", bag.display(), app::DIAGNOSTICS_TOPIC);
+    for (name, status) in last {
+        println!("{name}: {}", status.message);
+        for kv in status.values {
+            println!("  {} = {}", kv.key, kv.value);
+        }
+    }
+    Ok(())
+}
+
+/// `params`: the effective parameters as a ROS 2 params file.
+fn print_params_file(params: &AppParams) -> Result<()> {
+    let mut node = serde_yaml::Mapping::new();
+    node.insert("ros__parameters".into(), serde_yaml::to_value(params)?);
+    let mut doc = serde_yaml::Mapping::new();
+    doc.insert("angle_i2p".into(), serde_yaml::Value::Mapping(node));
+    print!("{}", serde_yaml::to_string(&doc)?);
+    Ok(())
+}
+
+/// `eval`: the table (or JSON) of every output bag against the input's ground truth, and the
+/// report when asked for.
+fn evaluate(bag: &Path, est: &[PathBuf], json: bool, params: &AppParams, report: Option<&Path>) -> Result<()> {
+    let run = app::evaluate_bags(bag, est, params)?;
+    let mut rows = vec![("raw matches (IR only)".to_string(), run.raw.clone())];
+    let mut evaluations = run.evaluations;
+    // Rows of one method (variants of it) are told apart by their output directory.
+    let methods: Vec<String> = evaluations.iter().map(|ev| ev.method.clone()).collect();
+    for (ev, e) in evaluations.iter_mut().zip(est) {
+        if methods.iter().filter(|m| **m == ev.method).count() > 1 {
+            let dir = e.file_name().map_or_else(|| e.display().to_string(), |n| n.to_string_lossy().into_owned());
+            ev.method = format!("{} ({dir})", ev.method);
+        }
+        rows.push((ev.method.clone(), ev.summary.clone()));
+    }
+    if json {
+        println!("{}", evaluations_json(&evaluations)?);
+    } else {
+        println!("{}", bag.display());
+        print!("{}", format_table(&rows));
+        print!("{}", app::format_no_pose(&evaluations, run.without_ground_truth));
+    }
+    if let Some(dir) = report {
+        // The pictures need every frame at once (ground truth, images): read apart from
+        // the streaming evaluation, only when asked for.
+        let input = angle_i2p::bag::read_frames_limited(bag, &params.topics, &params.limits)?;
+        write_report(bag, &input, &params.topics, &rows[0].1, &evaluations, est, dir)?;
+    }
+    Ok(())
+}
+
+/// `eval --json`: one object per output bag, its summary and why frames have no pose.
+fn evaluations_json(evaluations: &[app::Evaluation]) -> Result<String> {
+    let obj: serde_json::Map<String, serde_json::Value> = evaluations
+        .iter()
+        .map(|ev| {
+            let mut row = serde_json::to_value(&ev.summary)?;
+            if let Some(o) = row.as_object_mut() {
+                o.insert("no_pose".into(), serde_json::to_value(&ev.no_pose)?);
+            }
+            Ok((ev.method.clone(), row))
+        })
+        .collect::<Result<_>>()?;
+    Ok(serde_json::to_string_pretty(&obj)?)
+}
+
+/// `eval --report DIR`: the evaluations' plots and page (see `angle_i2p::report`).
+fn write_report(
+    bag: &Path,
+    input: &angle_i2p::bag::BagFrames,
+    topics: &TopicMap,
+    raw: &Summary,
+    evaluations: &[app::Evaluation],
+    est: &[PathBuf],
+    dir: &Path,
+) -> Result<()> {
+    use angle_i2p::report::{MethodRun, ReportInput};
+    let runs = evaluations
+        .iter()
+        .zip(est)
+        .map(|(ev, e)| MethodRun { label: ev.method.clone(), est: e.clone(), evaluation: ev })
+        .collect();
+    let report_input = ReportInput { bag_path: bag, bag: input, topics, raw, runs };
+    let files = angle_i2p::report::write_report(&report_input, dir)
+        .with_context(|| format!("writing the report into {}", dir.display()))?;
+    eprintln!("report: {} files → {}", files.files.len(), dir.join("index.html").display());
+    Ok(())
+}
+
+/// The preset `preset`, with the fields of the `--config` file over it.
+fn synth_config(preset: &str, config: Option<&Path>) -> Result<SynthConfig> {
+    let Some(cfg) = SynthConfig::preset(preset) else {
+        bail!("unknown preset {preset:?}: one of {}", PRESETS.join(", "));
+    };
+    let Some(path) = config else { return Ok(cfg) };
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    // Fields of the file override the preset's.
+    let mut base = serde_yaml::to_value(&cfg)?;
+    let over: serde_yaml::Value = serde_yaml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    if let (Some(b), Some(o)) = (base.as_mapping_mut(), over.as_mapping()) {
+        for (k, v) in o {
+            b.insert(k.clone(), v.clone());
+        }
+    }
+    serde_yaml::from_value(base).with_context(|| format!("{}", path.display()))
+}
+
+/// `synth`: the scene of `cfg` written as an input bag at `out` (replaced if there).
+fn synth(preset: &str, cfg: &SynthConfig, out: &Path) -> Result<()> {
+    let scene = generate(cfg);
+    if out.exists() {
+        std::fs::remove_dir_all(out).with_context(|| format!("replacing {}", out.display()))?;
+    }
+    write_input_bag(out, &TopicMap::default(), &scene.map, &scene.frames)?;
+    let irs: Vec<f64> = scene.stats.iter().map(|s| s.inlier_ratio).collect();
+    println!(
+        "synth {preset} (seed {}): {} frames, {} map points, mean inlier ratio {:.3} → {}",
+        cfg.seed,
+        scene.frames.len(),
+        scene.map.points.len(),
+        angle_i2p::eval::mean(&irs).unwrap_or(0.0),
+        out.display()
+    );
+    Ok(())
 }

@@ -3,16 +3,17 @@
 //! topic and published with that topic's QoS: the map (`PointCloud2`) latched (reliable,
 //! transient local), camera images as sensor data (best effort), everything else reliable.
 
+use std::collections::HashMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
 use ros2_client::{Node, Publisher, QosProfile};
 
-use crate::bag::BagReader;
+use crate::bag::{BagMessage, BagReader};
 use crate::msgs::{self, from_cdr, RosMessage};
-use crate::node::args::{Names, RosArgs};
 use crate::node::dds;
+use crate::params::{Names, RosArgs};
 
 #[derive(clap::Args, Clone, Debug)]
 pub struct PlayArgs {
@@ -124,26 +125,68 @@ fn make_publisher(node: &mut Node, type_name: &str, topic: &str) -> Result<Optio
     Ok(None)
 }
 
+/// A bag topic's publisher and the (remapped) topic it publishes on.
+struct TopicPublisher {
+    out_topic: String,
+    publisher: Box<dyn CdrPublisher>,
+}
+
 /// Publishes the bag; returns when done (or never with `--loop`, until interrupted).
 pub fn play(args: &PlayArgs) -> Result<PlayReport> {
     if !(args.rate.is_finite() && args.rate > 0.0) {
         bail!("--rate must be a positive number, got {}", args.rate);
     }
     let reader = BagReader::open(&args.bag)?;
-    let mut ros_args: Vec<String> = vec!["--ros-args".into()];
-    for r in &args.remaps {
-        ros_args.push("-r".into());
-        ros_args.push(r.clone());
-    }
-    let names = Names::new("angle_i2p_player", &RosArgs::parse(&ros_args)?);
+    let names = Names::new("angle_i2p_player", &RosArgs::parse(&remap_args(&args.remaps))?);
 
     let context = dds::context()?;
     let mut node = dds::node(&context, "/", &format!("angle_i2p_player_{}", std::process::id()))?;
     let _spinner = dds::spawn_spinner(&mut node)?;
 
     let mut report = PlayReport::default();
-    // Publishers by bag topic.
-    let mut publishers: std::collections::HashMap<String, (String, Box<dyn CdrPublisher>)> = Default::default();
+    let publishers = publishers(&reader, args, &names, &mut node, &mut report)?;
+    if publishers.is_empty() {
+        bail!("{}: nothing to publish", args.bag.display());
+    }
+    wait_for_subscribers(args, &publishers, &node);
+    let messages = reader.messages();
+    let Some(first) = messages.first().map(|m| m.log_time) else {
+        bail!("{}: the bag has no messages", args.bag.display());
+    };
+    let start = Instant::now();
+    loop {
+        report.loops += 1;
+        publish_pass(messages, first, &publishers, args.rate, &mut report);
+        if !args.loop_ {
+            break;
+        }
+    }
+    report.seconds = start.elapsed().as_secs_f64();
+    std::thread::sleep(Duration::from_secs_f64(args.linger.max(0.0)));
+    node.stop_spinner();
+    Ok(report)
+}
+
+/// `--remap from:=to` rules as ROS arguments.
+fn remap_args(remaps: &[String]) -> Vec<String> {
+    let mut ros_args: Vec<String> = vec!["--ros-args".into()];
+    for r in remaps {
+        ros_args.push("-r".into());
+        ros_args.push(r.clone());
+    }
+    ros_args
+}
+
+/// One publisher per bag topic (of `--topic` if given) whose type we can publish; the others
+/// are listed in the report as skipped.
+fn publishers(
+    reader: &BagReader,
+    args: &PlayArgs,
+    names: &Names,
+    node: &mut Node,
+    report: &mut PlayReport,
+) -> Result<HashMap<String, TopicPublisher>> {
+    let mut publishers: HashMap<String, TopicPublisher> = HashMap::new();
     for ch in reader.channels() {
         if !args.topics.is_empty() && !args.topics.contains(&ch.topic) {
             continue;
@@ -152,25 +195,26 @@ pub fn play(args: &PlayArgs) -> Result<PlayReport> {
             continue;
         }
         let out_topic = names.resolve(&ch.topic);
-        match make_publisher(&mut node, &ch.type_name, &out_topic)? {
-            Some(p) => {
-                publishers.insert(ch.topic.clone(), (out_topic, p));
+        match make_publisher(node, &ch.type_name, &out_topic)? {
+            Some(publisher) => {
+                publishers.insert(ch.topic.clone(), TopicPublisher { out_topic, publisher });
             }
             None => report.skipped_topics.push(format!("{} ({})", ch.topic, ch.type_name)),
         }
     }
-    if publishers.is_empty() {
-        bail!("{}: nothing to publish", args.bag.display());
-    }
+    Ok(publishers)
+}
 
-    // Wait for subscribers (bounded).
+/// Waits (bounded by `--wait-timeout`) for a subscriber on each `--wait-for` topic.
+fn wait_for_subscribers(args: &PlayArgs, publishers: &HashMap<String, TopicPublisher>, node: &Node) {
     let deadline = Instant::now() + Duration::from_secs_f64(args.wait_timeout.max(0.0));
     for topic in &args.wait_for {
-        let Some((_, p)) = publishers.iter().find(|(t, (out, _))| *t == topic || out == topic).map(|(_, v)| v) else {
+        let found = publishers.iter().find(|(t, p)| *t == topic || p.out_topic == *topic).map(|(_, p)| p);
+        let Some(p) = found else {
             eprintln!("[play] --wait-for {topic}: not a topic of this bag; not waiting");
             continue;
         };
-        while p.subscriptions(&node) == 0 {
+        while p.publisher.subscriptions(node) == 0 {
             if Instant::now() >= deadline {
                 eprintln!("[play] no subscriber on {topic} after {} s; playing anyway", args.wait_timeout);
                 break;
@@ -182,40 +226,34 @@ pub fn play(args: &PlayArgs) -> Result<PlayReport> {
         // Let the just-matched readers finish their handshake (reliable heartbeats).
         std::thread::sleep(Duration::from_millis(300));
     }
+}
 
-    let messages = reader.messages();
-    let Some(first) = messages.first().map(|m| m.log_time) else {
-        bail!("{}: the bag has no messages", args.bag.display());
-    };
-    let start = Instant::now();
-    let mut pass_start = start;
-    loop {
-        report.loops += 1;
-        for m in messages {
-            let Some((topic, p)) = publishers.get(m.topic()) else {
-                continue;
-            };
-            let offset = Duration::from_secs_f64(m.log_time.saturating_sub(first) as f64 / 1e9 / args.rate);
-            let due = pass_start + offset;
-            let now = Instant::now();
-            if due > now {
-                std::thread::sleep(due - now);
-            }
-            match p.publish_cdr(&m.data) {
-                Ok(()) => report.published += 1,
-                Err(e) => {
-                    report.failed += 1;
-                    eprintln!("[play] {topic} at log time {}: {e}", m.log_time);
-                }
+/// One pass over the bag's messages, each published at its log time (from `first`) / `rate`
+/// after the pass started.
+fn publish_pass(
+    messages: &[BagMessage],
+    first: u64,
+    publishers: &HashMap<String, TopicPublisher>,
+    rate: f64,
+    report: &mut PlayReport,
+) {
+    let pass_start = Instant::now();
+    for m in messages {
+        let Some(p) = publishers.get(m.topic()) else {
+            continue;
+        };
+        let offset = Duration::from_secs_f64(m.log_time.saturating_sub(first) as f64 / 1e9 / rate);
+        let due = pass_start + offset;
+        let now = Instant::now();
+        if due > now {
+            std::thread::sleep(due - now);
+        }
+        match p.publisher.publish_cdr(&m.data) {
+            Ok(()) => report.published += 1,
+            Err(e) => {
+                report.failed += 1;
+                eprintln!("[play] {} at log time {}: {e}", p.out_topic, m.log_time);
             }
         }
-        if !args.loop_ {
-            break;
-        }
-        pass_start = Instant::now();
     }
-    report.seconds = start.elapsed().as_secs_f64();
-    std::thread::sleep(Duration::from_secs_f64(args.linger.max(0.0)));
-    node.stop_spinner();
-    Ok(report)
 }

@@ -51,6 +51,38 @@ fn parameter_overrides_apply_and_typos_are_errors() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("tauu"));
 }
 
+/// The CLI layers its parameters as the node does (one `params::resolve`): a params file with
+/// wildcard and dotted sections, then `-p` overrides, flat node keys under `node`; what
+/// `params` prints is a params file that gives the same parameters back.
+#[test]
+fn params_layer_as_in_the_node_and_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("p.yaml");
+    std::fs::write(
+        &file,
+        "/**:\n  ros__parameters:\n    queue_depth: 3\n    pnp.min_inliers: 9\n\
+         angle_i2p:\n  ros__parameters:\n    method: ransac\n    pnp: {threshold_px: 5.0}\n",
+    )
+    .unwrap();
+    let text = run_ok(
+        Command::new(binary()).arg("params").arg("--params-file").arg(&file).args(["-p", "pnp.min_inliers:=11"]),
+    );
+    let doc: serde_yaml::Value = serde_yaml::from_str(&text).unwrap();
+    let p = &doc["angle_i2p"]["ros__parameters"];
+    assert_eq!(p["method"].as_str(), Some("ransac"), "{text}");
+    assert_eq!(p["pnp"]["threshold_px"].as_f64(), Some(5.0), "{text}");
+    assert_eq!(p["pnp"]["min_inliers"].as_u64(), Some(11), "-p wins over the file: {text}");
+    assert_eq!(p["node"]["queue_depth"].as_u64(), Some(3), "a flat node key lands under node: {text}");
+    let printed = dir.path().join("printed.yaml");
+    std::fs::write(&printed, &text).unwrap();
+    let again = run_ok(Command::new(binary()).arg("params").arg("--params-file").arg(&printed));
+    assert_eq!(again, text);
+    // A value out of range stops the command with its key.
+    let out = Command::new(binary()).args(["params", "-p", "queue_depth:=0"]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("node.queue_depth"));
+}
+
 #[test]
 fn shipped_bags_replay() {
     for tier in ["sift", "hard", "extreme"] {

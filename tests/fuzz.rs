@@ -330,20 +330,22 @@ fn wild(lo: f64, hi: f64) -> impl Strategy<Value = f64> {
 /// A frame as the edges can hand it to the core (sides and counts within the default input
 /// limits, scores clamped), with arbitrary values everywhere else.
 fn frame() -> impl Strategy<Value = angle_i2p::frame::Frame> {
-    let intrinsics = (wild(100.0, 900.0), wild(100.0, 900.0), wild(0.0, 640.0), wild(0.0, 480.0), 0u32..1300, 0u32..1000)
-        .prop_map(|(fx, fy, cx, cy, width, height)| Intrinsics { fx, fy, cx, cy, width, height });
-    let correspondence = (wild(-50.0, 700.0), wild(-50.0, 500.0), wild(-3.0, 3.0), wild(-3.0, 3.0), wild(0.2, 6.0), 0.0f32..=1.0)
-        .prop_map(|(u, v, x, y, z, score)| angle_i2p::frame::Correspondence {
-            pixel: nalgebra::Point2::new(u, v),
-            point: nalgebra::Point3::new(x, y, z),
-            score,
-        });
+    let intrinsics =
+        (wild(100.0, 900.0), wild(100.0, 900.0), wild(0.0, 640.0), wild(0.0, 480.0), 0u32..1300, 0u32..1000)
+            .prop_map(|(fx, fy, cx, cy, width, height)| Intrinsics { fx, fy, cx, cy, width, height });
+    let correspondence =
+        (wild(-50.0, 700.0), wild(-50.0, 500.0), wild(-3.0, 3.0), wild(-3.0, 3.0), wild(0.2, 6.0), 0.0f32..=1.0)
+            .prop_map(|(u, v, x, y, z, score)| angle_i2p::frame::Correspondence {
+                pixel: nalgebra::Point2::new(u, v),
+                point: nalgebra::Point3::new(x, y, z),
+                score,
+            });
     let prior = proptest::option::of((1u32..24, 1u32..18).prop_flat_map(|(w, h)| {
         proptest::collection::vec(wild(0.1, 8.0).prop_map(|v| v as f32), (w * h) as usize)
             .prop_map(move |data| DepthImage::new(w, h, data))
     }));
-    (intrinsics, proptest::collection::vec(correspondence, 0..80), prior).prop_map(|(intrinsics, correspondences, depth_prior)| {
-        angle_i2p::frame::Frame {
+    (intrinsics, proptest::collection::vec(correspondence, 0..80), prior).prop_map(
+        |(intrinsics, correspondences, depth_prior)| angle_i2p::frame::Frame {
             stamp: 1,
             camera_frame_id: "camera".into(),
             map_frame_id: "map".into(),
@@ -352,8 +354,8 @@ fn frame() -> impl Strategy<Value = angle_i2p::frame::Frame> {
             depth_prior,
             image: None,
             ground_truth: None,
-        }
-    })
+        },
+    )
 }
 
 proptest! {
@@ -374,7 +376,7 @@ proptest! {
             points: map.into_iter().map(|(x, y, z)| nalgebra::Point3::new(x, y, z)).collect(),
         };
         for method in [Method::Ransac, Method::Consistency, Method::AngleI2p] {
-            let mut params = angle_i2p::params::Params { method, ..Default::default() };
+            let mut params = angle_i2p::params::LocalizerParams { method, ..Default::default() };
             params.cascade.enabled = fast_path;
             params.pnp.max_iterations = 2000;
             let Ok(mut localizer) = Localizer::new(params) else { continue };

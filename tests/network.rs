@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use angle_i2p::bag::read_frames;
 use angle_i2p::npy;
-use angle_i2p::params::Params;
+use angle_i2p::params::LocalizerParams;
 use angle_i2p::reject::graph::Graphs;
 use angle_i2p::reject::inputs::{build_inputs, IndexedMap, NetworkInputs};
 use angle_i2p::reject::network::{NetworkParams, NetworkRejector};
@@ -64,8 +64,8 @@ fn assert_close(a: &[f32], b: &[f32], tol: f32, what: &str) {
 
 #[test]
 fn rust_inputs_are_reproduced_exactly() {
-    let bag = read_frames(manifest().join("bags/synth-hard"), &Params::default().topics).unwrap();
-    let params = Params::default();
+    let bag = read_frames(manifest().join("bags/synth-hard"), &angle_i2p::params::TopicMap::default()).unwrap();
+    let params = LocalizerParams::default();
     let frame = &bag.frames[0];
     let geometry = FrameGeometry::build(frame, params.depth_kind, Some(&params.align));
     let map = IndexedMap::new(bag.map.unwrap().points);

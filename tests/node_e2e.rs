@@ -20,7 +20,7 @@ use angle_i2p::bag::{read_frames, BagFrames, BagReader, TopicMap};
 use angle_i2p::msgs::{self, convert, from_cdr};
 use angle_i2p::node::dds;
 use angle_i2p::node::diagnostics::status_value;
-use angle_i2p::params::Params;
+use angle_i2p::params::LocalizerParams;
 use angle_i2p::pipeline::Localizer;
 use common::{binary, manifest, python, skip_or_fail};
 use netns::{mark_done, run_in_netns, wait_bounded};
@@ -153,7 +153,7 @@ fn play_command_of(bag: &Path) -> Command {
 /// The localizer the node runs, with the bag's map set as the node sets it when the map arrives
 /// (the network's inputs use the map's normals).
 fn localizer_for(input: &BagFrames) -> Localizer {
-    let mut localizer = Localizer::new(Params::default()).expect("a localizer");
+    let mut localizer = Localizer::new(LocalizerParams::default()).expect("a localizer");
     if let Some(map) = &input.map {
         localizer.set_map(map);
     }

@@ -12,7 +12,7 @@ use angle_i2p::bag::{read_frames, TopicMap};
 use angle_i2p::frame::Frame;
 use angle_i2p::msgs::{self, convert};
 use angle_i2p::node::dds;
-use angle_i2p::params::Params;
+use angle_i2p::params::LocalizerParams;
 use angle_i2p::pipeline::{Localizer, Method};
 use common::{binary, manifest};
 use netns::{enter_netns, mark_done, run_in_netns, Guard};
@@ -45,7 +45,8 @@ fn diag_of(d: &msgs::DiagnosticArray, fq_name: &str, key: &str) -> u64 {
 fn ransac_frame() -> (Frame, angle_i2p::frame::MapCloud, nalgebra::Isometry3<f64>) {
     let input = read_frames(manifest().join("bags/synth-hard"), &TopicMap::default()).expect("read bag");
     let map = input.map.clone().expect("map");
-    let mut localizer = Localizer::new(Params { method: Method::Ransac, ..Params::default() }).expect("a localizer");
+    let mut localizer =
+        Localizer::new(LocalizerParams { method: Method::Ransac, ..LocalizerParams::default() }).expect("a localizer");
     localizer.set_map(&map);
     let (frame, pose) = input
         .frames

@@ -6,7 +6,7 @@ use angle_i2p::bag::read_frames;
 use angle_i2p::eval::{inlier_mask, inlier_ratio, pose_errors, summarize, FrameMetrics};
 use angle_i2p::frame::{Frame, MapCloud};
 use angle_i2p::geometry::DepthKind;
-use angle_i2p::params::Params;
+use angle_i2p::params::LocalizerParams;
 use angle_i2p::pipeline::{Failure, Localizer, Method};
 use angle_i2p::synth::{generate, SynthConfig};
 
@@ -18,10 +18,10 @@ fn localize_all(frames: &[Frame], method: Method) -> (Vec<FrameMetrics>, f64) {
 }
 
 fn localize_all_with_map(frames: &[Frame], map: Option<&MapCloud>, method: Method) -> (Vec<FrameMetrics>, f64) {
-    localize_params(frames, map, Params { method, ..Params::default() })
+    localize_params(frames, map, LocalizerParams { method, ..LocalizerParams::default() })
 }
 
-fn localize_params(frames: &[Frame], map: Option<&MapCloud>, params: Params) -> (Vec<FrameMetrics>, f64) {
+fn localize_params(frames: &[Frame], map: Option<&MapCloud>, params: LocalizerParams) -> (Vec<FrameMetrics>, f64) {
     let method = params.method;
     let mut localizer = Localizer::new(params).unwrap_or_else(|e| panic!("{}: {e}", method.name()));
     if let Some(map) = map {
@@ -68,7 +68,7 @@ fn ransac_localizes_synthetic_sift_frames_accurately() {
 fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
     let scene = generate(&SynthConfig { frames: 2, seed: 5, ..SynthConfig::preset("sift").unwrap() });
     let good = scene.frames[1].clone();
-    let mut localizer = Localizer::new(Params::default()).expect("a localizer");
+    let mut localizer = Localizer::new(LocalizerParams::default()).expect("a localizer");
 
     let mut empty = scene.frames[0].clone();
     empty.correspondences.clear();
@@ -92,7 +92,7 @@ fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
     no_prior.depth_prior = None;
     let loc = localizer.process(&no_prior);
     assert!(loc.fast_path && loc.pose.is_some() && loc.prior_quality.is_none(), "{:?}", loc.failure);
-    let mut full_path_only = Params::default();
+    let mut full_path_only = LocalizerParams::default();
     full_path_only.cascade.enabled = false;
     let loc = Localizer::new(full_path_only).expect("a localizer").process(&no_prior);
     assert!(matches!(loc.failure, Some(Failure::Rejection(_))), "{:?}", loc.failure);
@@ -106,7 +106,7 @@ fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
             prior.data.iter_mut().for_each(|d| *d = value);
         }
         for method in [Method::Consistency, Method::AngleI2p] {
-            let mut params = Params { method, ..Params::default() };
+            let mut params = LocalizerParams { method, ..LocalizerParams::default() };
             params.cascade.enabled = false;
             let Ok(mut full) = Localizer::new(params) else { continue };
             let loc = full.process(&blank);
@@ -128,16 +128,16 @@ fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
 
 /// Localizes every frame of a shared real bag; `None` (and a printed reason) when it is absent.
 fn real_bag_summary(name: &str, method: Method) -> Option<(angle_i2p::eval::Summary, f64)> {
-    real_bag_summary_with(name, Params { method, ..Params::default() })
+    real_bag_summary_with(name, LocalizerParams { method, ..LocalizerParams::default() })
 }
 
-fn real_bag_summary_with(name: &str, params: Params) -> Option<(angle_i2p::eval::Summary, f64)> {
+fn real_bag_summary_with(name: &str, params: LocalizerParams) -> Option<(angle_i2p::eval::Summary, f64)> {
     let Some(bag) = shared_bag(name) else {
         eprintln!("SKIP: ../shared/data/{name} is absent");
         return None;
     };
     let method = params.method;
-    let input = read_frames(&bag, &Params::default().topics).unwrap();
+    let input = read_frames(&bag, &angle_i2p::params::TopicMap::default()).unwrap();
     let (rows, raw_ir) = localize_params(&input.frames, input.map.as_ref(), params);
     assert!((app::raw_inlier_ratio(&input).ir - raw_ir).abs() < 1e-9);
     let s = summarize(&rows);
@@ -188,11 +188,11 @@ fn learned_rejection_with_realistic_priors() {
     if onnx_runtime().is_none() {
         return;
     }
-    let disparity = Params { depth_kind: DepthKind::Disparity, ..Params::default() };
+    let disparity = LocalizerParams { depth_kind: DepthKind::Disparity, ..LocalizerParams::default() };
     for (name, params) in [
-        ("redkitchen-hard-val-harsh", Params::default()),
+        ("redkitchen-hard-val-harsh", LocalizerParams::default()),
         ("redkitchen-hard-val-disparity", disparity.clone()),
-        ("redkitchen-extreme-val-harsh", Params::default()),
+        ("redkitchen-extreme-val-harsh", LocalizerParams::default()),
         ("redkitchen-extreme-val-disparity", disparity),
     ] {
         let Some((s, _)) = real_bag_summary_with(name, params) else { return };
@@ -205,8 +205,8 @@ fn learned_rejection_with_realistic_priors() {
 /// (no rejection), hard frames go on to the rejector; both are localized.
 #[test]
 fn easy_frames_end_on_the_fast_path_and_hard_ones_do_not() {
-    let mut localizer =
-        Localizer::new(Params { method: Method::Consistency, ..Params::default() }).expect("a localizer");
+    let mut localizer = Localizer::new(LocalizerParams { method: Method::Consistency, ..LocalizerParams::default() })
+        .expect("a localizer");
     for (preset, fast) in [("easy+close", true), ("sift", true), ("hard", false)] {
         let scene = generate(&SynthConfig { frames: 3, seed: 9, ..SynthConfig::preset(preset).unwrap() });
         localizer.set_map(&scene.map);
@@ -230,16 +230,17 @@ fn replay_reports_each_frames_registration_as_it_goes() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let bag = common::manifest().join("bags/synth-extreme");
-    let params = Params { method: Method::Ransac, ..Params::default() };
+    let params = LocalizerParams { method: Method::Ransac, ..LocalizerParams::default() };
     let mut localizer = Localizer::new(params.clone()).expect("a localizer");
     let (mut seen, mut registered) = (0usize, 0usize);
-    app::replay(&bag, &out, &mut localizer, &params.topics, |p| {
+    let defaults = angle_i2p::params::AppParams::default();
+    app::replay(&bag, &out, &mut localizer, app::BagEdge::of(&defaults), |p| {
         assert_eq!(p.index, seen);
         seen += 1;
         registered += usize::from(p.registered.expect("the bag has ground truth"));
     })
     .unwrap();
-    let run = app::evaluate_bags(&bag, &[out], &params).unwrap();
+    let run = app::evaluate_bags(&bag, &[out], &defaults).unwrap();
     assert_eq!(seen, 20);
     assert!((100.0 * registered as f64 / seen as f64 - run.evaluations[0].summary.rr).abs() < 1e-9);
 }

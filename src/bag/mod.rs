@@ -16,9 +16,9 @@ pub use reader::{
 };
 pub use writer::{BagWriter, ChunkCompression, LIBRARY};
 
-use std::path::{Path, PathBuf};
+pub use crate::params::TopicMap;
 
-use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
 
 use crate::frame::Frame;
 use crate::frame::{Assembled, FramePart, IncompleteFrame, MapCloud, PartKind};
@@ -54,49 +54,7 @@ pub enum BagError {
     WrongType { path: PathBuf, topic: String, expected: String, found: String },
 }
 
-/// Topic names, inputs and outputs; defaults are those of the shared bags.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct TopicMap {
-    /// `sensor_msgs/msg/PointCloud2`, once.
-    pub map: String,
-    /// `sensor_msgs/msg/CameraInfo`.
-    pub camera_info: String,
-    /// `sensor_msgs/msg/CompressedImage`.
-    pub image: String,
-    /// `sensor_msgs/msg/Image` (32FC1 or 16UC1).
-    pub depth_prior: String,
-    /// `angle_i2p_msgs/msg/Correspondences`.
-    pub correspondences: String,
-    /// `geometry_msgs/msg/PoseStamped`, camera-to-map.
-    pub ground_truth_pose: String,
-    /// `sensor_msgs/msg/Image`, 16UC1 millimetres.
-    pub ground_truth_depth: String,
-    /// Output `geometry_msgs/msg/PoseStamped`.
-    pub pose: String,
-    /// Output `geometry_msgs/msg/PoseWithCovarianceStamped`.
-    pub pose_with_covariance: String,
-    /// Output `angle_i2p_msgs/msg/Correspondences` (inliers, with inlier scores).
-    pub output_correspondences: String,
-}
-
-impl Default for TopicMap {
-    fn default() -> Self {
-        Self {
-            map: "/map/points".into(),
-            camera_info: "/camera/camera_info".into(),
-            image: "/camera/image_raw/compressed".into(),
-            depth_prior: "/depth_prior/image".into(),
-            correspondences: "/matcher/correspondences".into(),
-            ground_truth_pose: "/ground_truth/pose".into(),
-            ground_truth_depth: "/ground_truth/depth".into(),
-            pose: "/angle_i2p/pose".into(),
-            pose_with_covariance: "/angle_i2p/pose_with_covariance".into(),
-            output_correspondences: "/angle_i2p/correspondences".into(),
-        }
-    }
-}
-
+/// What each topic of the map carries, for the bag and node edges (the names are parameters).
 impl TopicMap {
     /// The frame part carried by `topic`, if it is a frame input.
     pub fn part_of(&self, topic: &str) -> Option<PartKind> {

@@ -20,8 +20,7 @@ use mcap::sans_io::LinearReaderOptions;
 use super::metadata::MetadataFile;
 use super::BagError;
 
-/// Default [`ReadOptions::max_record_bytes`]: 256 MiB (an 8192 × 8192 32FC1 image and its header).
-pub const DEFAULT_MAX_RECORD_BYTES: u64 = 256 << 20;
+pub use crate::limits::DEFAULT_MAX_RECORD_BYTES;
 /// The longest header record read for the profile check.
 const MAX_HEADER_RECORD: u64 = 1 << 20;
 

@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::params::Params;
+use crate::params::LocalizerParams;
 use crate::reject::network::ONNXRUNTIME_LIBRARY;
 
 /// The ROS package name.
@@ -34,7 +34,7 @@ impl InstallDirs {
 
     /// Points relative model and runtime paths at the installed files when those exist and the
     /// paths as given do not resolve from the working directory. Returns what it changed.
-    pub fn resolve(&self, params: &mut Params) -> Vec<String> {
+    pub fn resolve(&self, params: &mut LocalizerParams) -> Vec<String> {
         let mut changed = Vec::new();
         let net = &mut params.network;
         let model = Path::new(&net.model_path);
@@ -69,13 +69,13 @@ mod tests {
         assert_eq!(dirs.share, prefix.join("share/angle_i2p"));
         std::fs::create_dir_all(dirs.share.join("models")).unwrap();
         std::fs::write(dirs.share.join("models/test-only.onnx"), b"x").unwrap();
-        let mut p = Params::default();
+        let mut p = LocalizerParams::default();
         p.network.model_path = "models/test-only.onnx".into();
         let changed = dirs.resolve(&mut p);
         assert_eq!(p.network.model_path, dirs.share.join("models/test-only.onnx").display().to_string());
         assert_eq!(changed.len(), 1, "{changed:?}");
         // Absolute paths and files that resolve as given are left alone.
-        let mut p = Params::default();
+        let mut p = LocalizerParams::default();
         p.network.model_path = "/elsewhere/m.onnx".into();
         assert!(dirs.resolve(&mut p).is_empty());
         assert_eq!(p.network.model_path, "/elsewhere/m.onnx");

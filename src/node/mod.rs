@@ -14,7 +14,6 @@
 //! parts, frames before any map) is counted by reason in `/diagnostics` and logged; the node
 //! keeps going. Topics are the [`crate::bag::TopicMap`]'s, resolved with `--ros-args` remaps.
 
-pub mod args;
 pub mod dds;
 pub mod diagnostics;
 pub mod health;
@@ -30,12 +29,14 @@ pub mod tf;
 pub mod tf_buffer;
 mod topics;
 
-pub use args::{resolve_params, ArgsError, LogLevel, MapQos, Names, NodeParams, ResolvedParams, RosArgs};
+pub use crate::params::{ArgsError, LogLevel, MapQos, Names, NodeParams, RosArgs};
 pub use diagnostics::{status_name, status_value, Stats, LOCALIZATION_TASK};
 pub use queue::DropOldestQueue;
 pub use run::run_node;
 
 use std::path::PathBuf;
+
+use crate::params;
 
 /// Default node name.
 pub const NODE_NAME: &str = "angle_i2p";
@@ -56,9 +57,10 @@ pub struct NodeConfig {
 pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     let args = RosArgs::parse(&config.ros_args)?;
     let names = Names::new(NODE_NAME, &args);
-    let mut resolved = resolve_params(config.params_file.as_deref(), &args, &names)?;
+    let layers = params::Layers { names: &names, params_file: config.params_file.as_deref(), ros_args: &args };
+    let mut resolved = params::resolve(&layers)?;
     if let Some(dirs) = std::env::current_exe().ok().as_deref().and_then(install::InstallDirs::of_binary) {
-        for change in dirs.resolve(&mut resolved.params) {
+        for change in dirs.resolve(&mut resolved.localizer) {
             eprintln!("[angle_i2p] installed package: {change}");
         }
     }

@@ -12,7 +12,6 @@ use futures::StreamExt;
 use ros2_client::{Publisher, Subscription};
 use tokio::sync::mpsc;
 
-use super::args::{LogLevel, MapQos, Names, NodeParams, ResolvedParams};
 use super::dds;
 use super::diagnostics::Stats;
 use super::health::Health;
@@ -27,6 +26,7 @@ pub use super::topics::Topics;
 use crate::bag::BagWriter;
 use crate::frame::{Assembled, Frame, FrameAssembler, FramePart, IncompleteFrame, MapCloud, PartKind, Stamp};
 use crate::msgs::{self, convert, RosMessage};
+use crate::params::{AppParams, LogLevel, MapQos, Names, NodeParams};
 use crate::pipeline::{Localization, Localizer, Method};
 
 /// The node's `--log-level` (`LogLevel as u8`; info by default).
@@ -614,10 +614,10 @@ fn input_requirements(topics: &Topics, map_qos: MapQos, reads_tf: bool) -> Vec<I
 }
 
 /// Runs the node until SIGINT/SIGTERM; `record` also writes every published message to a bag.
-pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<PathBuf>) -> Result<()> {
+pub async fn run_node(names: Names, resolved: AppParams, record: Option<PathBuf>) -> Result<()> {
     let topics = Topics::new(&resolved, &names);
     let np: NodeParams = resolved.node.clone();
-    let params = resolved.params.clone();
+    let params = resolved.localizer.clone();
     let recorder = Recorder::default();
     if let Some(path) = &record {
         let w = BagWriter::create(path).with_context(|| format!("--record {}", path.display()))?;
@@ -677,7 +677,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         topics.camera_info.clone(),
         tx.clone(),
         {
-            let limits = params.limits.clone();
+            let limits = resolved.limits.clone();
             move |m| {
                 let stamp = convert::stamp(&m.header);
                 let r = crate::limits::check_image_side("CameraInfo", m.width, m.height, &limits).and_then(|()| {
@@ -711,7 +711,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             topics.depth_prior.clone(),
             tx.clone(),
             {
-                let limits = params.limits.clone();
+                let limits = resolved.limits.clone();
                 move |m| {
                     let stamp = convert::stamp(&m.header);
                     let r = crate::limits::check_image_side("depth prior", m.width, m.height, &limits).and_then(|()| {
@@ -732,7 +732,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
             topics.image.clone(),
             tx.clone(),
             {
-                let side = params.limits.max_image_side;
+                let side = resolved.limits.max_image_side;
                 move |m| {
                     let rgb = || img::rgb_from_compressed_within(&m, side);
                     image_part(&src, ImageSource::COMPRESSED, &topic, &m.header, rgb)
@@ -748,7 +748,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         )?);
     }
     for qos in map_qos_profiles(np.map_qos) {
-        let limits = params.limits.clone();
+        let limits = resolved.limits.clone();
         readers.push(spawn_reader(
             dds::subscription::<msgs::PointCloud2>(&mut node, &topics.map, &qos)?,
             topics.map.clone(),
@@ -824,7 +824,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
         map_changed: false,
         queue: queue.clone(),
         stats: stats.clone(),
-        limits: params.limits.clone(),
+        limits: resolved.limits.clone(),
         limit_counts: Default::default(),
     };
     if !np.map_path.is_empty() {

@@ -8,8 +8,8 @@
 //! given. `/diagnostics`, `/tf` and `/tf_static` stay absolute, as `diagnostic_updater` and
 //! tf2 have them (remap them, e.g. `-r /tf:=tf`, to keep them per robot).
 
-use super::args::{Names, ResolvedParams};
 use crate::bag::TopicMap;
+use crate::params::{AppParams, Names};
 
 /// Resolved topic names of the node.
 #[derive(Clone, Debug)]
@@ -41,8 +41,8 @@ fn relative_if_default(value: &str, default: &str) -> String {
 }
 
 impl Topics {
-    pub fn new(params: &ResolvedParams, names: &Names) -> Self {
-        let (t, n, d) = (&params.params.topics, &params.node, TopicMap::default());
+    pub fn new(params: &AppParams, names: &Names) -> Self {
+        let (t, n, d) = (&params.topics, &params.node, TopicMap::default());
         let topic = |value: &str, default: &str| names.resolve(&relative_if_default(value, default));
         Self {
             camera_info: topic(&t.camera_info, &d.camera_info),
@@ -66,12 +66,12 @@ impl Topics {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::node::args::{resolve_params, RosArgs};
+    use crate::params::{resolve, Layers, RosArgs};
 
     fn topics(args: &[&str]) -> Topics {
         let a = RosArgs::parse(args).unwrap();
         let names = Names::new("angle_i2p", &a);
-        let r = resolve_params(None, &a, &names).unwrap();
+        let r = resolve(&Layers { names: &names, params_file: None, ros_args: &a }).unwrap();
         Topics::new(&r, &names)
     }
 

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
-use crate::params::Params;
+use crate::params::LocalizerParams;
 use crate::pnp::{solve_pnp_ransac, Guidance, PnpError, PnpParams, PnpSolution, Problem};
 use crate::reject::network::{NetworkError, NetworkRejector};
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
@@ -128,7 +128,7 @@ pub enum SetupError {
 
 /// Localizes frames; holds the reusable per-frame buffers.
 pub struct Localizer {
-    params: Params,
+    params: LocalizerParams,
     rejector: Option<Box<dyn Rejector>>,
     /// The map subsample that PnP's hypotheses are rendered from for verification.
     render_map: RenderMap,
@@ -137,7 +137,7 @@ pub struct Localizer {
 impl Localizer {
     /// A localizer for `params.method`; an error when its rejector cannot run (e.g. ONNX Runtime
     /// or the model is missing).
-    pub fn new(params: Params) -> Result<Self, SetupError> {
+    pub fn new(params: LocalizerParams) -> Result<Self, SetupError> {
         let rejector: Option<Box<dyn Rejector>> = match params.method {
             Method::Ransac => None,
             Method::Consistency => Some(Box::new(SpectralRejector::new(params.spectral.clone()))),
@@ -158,7 +158,7 @@ impl Localizer {
         };
     }
 
-    pub fn params(&self) -> &Params {
+    pub fn params(&self) -> &LocalizerParams {
         &self.params
     }
 

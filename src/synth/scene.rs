@@ -80,151 +80,189 @@ fn solid(name: &'static str, centre: [f64; 3], half: [f64; 3], yaw: f64, albedo:
     }
 }
 
+/// Wall thickness, m.
+const WALL_THICKNESS: f64 = 0.1;
+
+/// A room's interior extents (m) and the horizontal scale of a furniture layout made for 5 × 4 m.
+struct RoomSize {
+    l: f64,
+    w: f64,
+    h: f64,
+    sx: f64,
+    sy: f64,
+}
+
+/// A colour varied by a random brightness of ±15 %.
+fn jitter(rng: &mut StdRng, c: [f64; 3]) -> [f64; 3] {
+    let k = 0.85 + 0.3 * rng.random::<f64>();
+    [(c[0] * k).clamp(0.02, 1.0), (c[1] * k).clamp(0.02, 1.0), (c[2] * k).clamp(0.02, 1.0)]
+}
+
+/// Floor, ceiling and the four walls.
+fn shell(room: &RoomSize, rng: &mut StdRng) -> Vec<Solid> {
+    let (l, w, h, t) = (room.l, room.w, room.h, WALL_THICKNESS);
+    vec![
+        solid(
+            "floor",
+            [l / 2.0, w / 2.0, -t / 2.0],
+            [l / 2.0 + t, w / 2.0 + t, t / 2.0],
+            0.0,
+            jitter(rng, [0.55, 0.45, 0.35]),
+            Texture::Tiles,
+        ),
+        solid(
+            "ceiling",
+            [l / 2.0, w / 2.0, h + t / 2.0],
+            [l / 2.0 + t, w / 2.0 + t, t / 2.0],
+            0.0,
+            jitter(rng, [0.85, 0.85, 0.82]),
+            Texture::Fabric,
+        ),
+        solid(
+            "wall_west",
+            [-t / 2.0, w / 2.0, h / 2.0],
+            [t / 2.0, w / 2.0 + t, h / 2.0 + t],
+            0.0,
+            jitter(rng, [0.75, 0.70, 0.55]),
+            Texture::Wallpaper,
+        ),
+        solid(
+            "wall_east",
+            [l + t / 2.0, w / 2.0, h / 2.0],
+            [t / 2.0, w / 2.0 + t, h / 2.0 + t],
+            0.0,
+            jitter(rng, [0.55, 0.65, 0.75]),
+            Texture::Wallpaper,
+        ),
+        solid(
+            "wall_south",
+            [l / 2.0, -t / 2.0, h / 2.0],
+            [l / 2.0 + t, t / 2.0, h / 2.0 + t],
+            0.0,
+            jitter(rng, [0.70, 0.75, 0.60]),
+            Texture::Wallpaper,
+        ),
+        solid(
+            "wall_north",
+            [l / 2.0, w + t / 2.0, h / 2.0],
+            [l / 2.0 + t, t / 2.0, h / 2.0 + t],
+            0.0,
+            jitter(rng, [0.78, 0.62, 0.58]),
+            Texture::Wallpaper,
+        ),
+    ]
+}
+
+/// The table, its legs and the box on it (kept ≥ ~0.8 m from the camera path, as all furniture).
+fn table(room: &RoomSize, rng: &mut StdRng) -> Vec<Solid> {
+    let (sx, sy) = (room.sx, room.sy);
+    let mut solids = Vec::new();
+    let wood = jitter(rng, [0.55, 0.35, 0.2]);
+    let table = (1.0 * sx, 3.25 * sy);
+    solids.push(solid("table_top", [table.0, table.1, 0.74], [0.6, 0.38, 0.02], 0.0, wood, Texture::Wood));
+    for (dx, dy) in [(-0.55, -0.33), (0.55, -0.33), (-0.55, 0.33), (0.55, 0.33)] {
+        solids.push(solid(
+            "table_leg",
+            [table.0 + dx, table.1 + dy, 0.36],
+            [0.03, 0.03, 0.36],
+            0.0,
+            wood,
+            Texture::Wood,
+        ));
+    }
+    solids.push(solid(
+        "box_on_table",
+        [table.0 + 0.2, table.1 + 0.05, 0.86],
+        [0.15, 0.1, 0.1],
+        0.35,
+        jitter(rng, [0.8, 0.2, 0.15]),
+        Texture::Fabric,
+    ));
+    solids
+}
+
+/// The rest of the furniture and what hangs on the walls.
+fn furnishings(room: &RoomSize, rng: &mut StdRng) -> Vec<Solid> {
+    let (l, w, h, sx, sy) = (room.l, room.w, room.h, room.sx, room.sy);
+    vec![
+        solid(
+            "cabinet",
+            [l - 0.26, 0.55 * sy, 0.9],
+            [0.25, 0.45, 0.9],
+            0.0,
+            jitter(rng, [0.35, 0.3, 0.28]),
+            Texture::Wood,
+        ),
+        solid(
+            "sofa_seat",
+            [2.5 * sx, 0.42, 0.22],
+            [0.9, 0.4, 0.22],
+            0.0,
+            jitter(rng, [0.25, 0.35, 0.6]),
+            Texture::Fabric,
+        ),
+        solid(
+            "sofa_back",
+            [2.5 * sx, 0.1, 0.5],
+            [0.9, 0.1, 0.5],
+            0.0,
+            jitter(rng, [0.22, 0.32, 0.55]),
+            Texture::Fabric,
+        ),
+        solid(
+            "armchair",
+            [0.6 * sx, 0.8 * sy, 0.3],
+            [0.3, 0.3, 0.3],
+            0.5,
+            jitter(rng, [0.6, 0.25, 0.3]),
+            Texture::Fabric,
+        ),
+        solid("shelf", [4.45 * sx, 3.45 * sy, 0.7], [0.4, 0.2, 0.7], -0.6, jitter(rng, [0.5, 0.4, 0.3]), Texture::Wood),
+        solid(
+            "bed",
+            [3.0 * sx, 3.62 * sy, 0.25],
+            [0.6, 0.35, 0.25],
+            0.1,
+            jitter(rng, [0.7, 0.7, 0.75]),
+            Texture::Fabric,
+        ),
+        solid(
+            "pillar",
+            [0.3, 2.0 * sy, h / 2.0],
+            [0.15, 0.15, h / 2.0],
+            0.0,
+            jitter(rng, [0.8, 0.8, 0.8]),
+            Texture::Fabric,
+        ),
+        solid(
+            "painting",
+            [2.6 * sx, w - 0.01, 1.5],
+            [0.5, 0.012, 0.35],
+            0.0,
+            jitter(rng, [0.9, 0.8, 0.6]),
+            Texture::Painting,
+        ),
+        solid("door", [0.012, 3.1 * sy, 1.0], [0.012, 0.45, 1.0], 0.0, jitter(rng, [0.6, 0.45, 0.3]), Texture::Wood),
+        solid(
+            "poster",
+            [l - 0.01, 2.4 * sy, 1.6],
+            [0.012, 0.4, 0.5],
+            0.0,
+            jitter(rng, [0.8, 0.85, 0.9]),
+            Texture::Painting,
+        ),
+    ]
+}
+
 impl Scene {
     /// A furnished room of interior size `size` (defaults ≈ 5 × 4 × 2.7 m). Furniture is
     /// laid out for the default room and scaled horizontally with it; `rng` jitters colours.
     pub fn room(size: Vector3<f64>, rng: &mut StdRng) -> Scene {
         let (l, w, h) = (size.x.max(2.0), size.y.max(2.0), size.z.max(1.5));
-        let t = 0.1; // wall thickness
-        let sx = l / 5.0;
-        let sy = w / 4.0;
-        let mut jitter = |c: [f64; 3]| -> [f64; 3] {
-            let k = 0.85 + 0.3 * rng.random::<f64>();
-            [(c[0] * k).clamp(0.02, 1.0), (c[1] * k).clamp(0.02, 1.0), (c[2] * k).clamp(0.02, 1.0)]
-        };
-        let mut solids = vec![
-            solid(
-                "floor",
-                [l / 2.0, w / 2.0, -t / 2.0],
-                [l / 2.0 + t, w / 2.0 + t, t / 2.0],
-                0.0,
-                jitter([0.55, 0.45, 0.35]),
-                Texture::Tiles,
-            ),
-            solid(
-                "ceiling",
-                [l / 2.0, w / 2.0, h + t / 2.0],
-                [l / 2.0 + t, w / 2.0 + t, t / 2.0],
-                0.0,
-                jitter([0.85, 0.85, 0.82]),
-                Texture::Fabric,
-            ),
-            solid(
-                "wall_west",
-                [-t / 2.0, w / 2.0, h / 2.0],
-                [t / 2.0, w / 2.0 + t, h / 2.0 + t],
-                0.0,
-                jitter([0.75, 0.70, 0.55]),
-                Texture::Wallpaper,
-            ),
-            solid(
-                "wall_east",
-                [l + t / 2.0, w / 2.0, h / 2.0],
-                [t / 2.0, w / 2.0 + t, h / 2.0 + t],
-                0.0,
-                jitter([0.55, 0.65, 0.75]),
-                Texture::Wallpaper,
-            ),
-            solid(
-                "wall_south",
-                [l / 2.0, -t / 2.0, h / 2.0],
-                [l / 2.0 + t, t / 2.0, h / 2.0 + t],
-                0.0,
-                jitter([0.70, 0.75, 0.60]),
-                Texture::Wallpaper,
-            ),
-            solid(
-                "wall_north",
-                [l / 2.0, w + t / 2.0, h / 2.0],
-                [l / 2.0 + t, t / 2.0, h / 2.0 + t],
-                0.0,
-                jitter([0.78, 0.62, 0.58]),
-                Texture::Wallpaper,
-            ),
-        ];
-        // Furniture, laid out for a 5 × 4 m room, kept ≥ ~0.8 m from the camera path.
-        let wood = jitter([0.55, 0.35, 0.2]);
-        let table = (1.0 * sx, 3.25 * sy);
-        solids.push(solid("table_top", [table.0, table.1, 0.74], [0.6, 0.38, 0.02], 0.0, wood, Texture::Wood));
-        for (dx, dy) in [(-0.55, -0.33), (0.55, -0.33), (-0.55, 0.33), (0.55, 0.33)] {
-            solids.push(solid(
-                "table_leg",
-                [table.0 + dx, table.1 + dy, 0.36],
-                [0.03, 0.03, 0.36],
-                0.0,
-                wood,
-                Texture::Wood,
-            ));
-        }
-        solids.extend([
-            solid(
-                "box_on_table",
-                [table.0 + 0.2, table.1 + 0.05, 0.86],
-                [0.15, 0.1, 0.1],
-                0.35,
-                jitter([0.8, 0.2, 0.15]),
-                Texture::Fabric,
-            ),
-            solid(
-                "cabinet",
-                [l - 0.26, 0.55 * sy, 0.9],
-                [0.25, 0.45, 0.9],
-                0.0,
-                jitter([0.35, 0.3, 0.28]),
-                Texture::Wood,
-            ),
-            solid(
-                "sofa_seat",
-                [2.5 * sx, 0.42, 0.22],
-                [0.9, 0.4, 0.22],
-                0.0,
-                jitter([0.25, 0.35, 0.6]),
-                Texture::Fabric,
-            ),
-            solid("sofa_back", [2.5 * sx, 0.1, 0.5], [0.9, 0.1, 0.5], 0.0, jitter([0.22, 0.32, 0.55]), Texture::Fabric),
-            solid(
-                "armchair",
-                [0.6 * sx, 0.8 * sy, 0.3],
-                [0.3, 0.3, 0.3],
-                0.5,
-                jitter([0.6, 0.25, 0.3]),
-                Texture::Fabric,
-            ),
-            solid("shelf", [4.45 * sx, 3.45 * sy, 0.7], [0.4, 0.2, 0.7], -0.6, jitter([0.5, 0.4, 0.3]), Texture::Wood),
-            solid(
-                "bed",
-                [3.0 * sx, 3.62 * sy, 0.25],
-                [0.6, 0.35, 0.25],
-                0.1,
-                jitter([0.7, 0.7, 0.75]),
-                Texture::Fabric,
-            ),
-            solid(
-                "pillar",
-                [0.3, 2.0 * sy, h / 2.0],
-                [0.15, 0.15, h / 2.0],
-                0.0,
-                jitter([0.8, 0.8, 0.8]),
-                Texture::Fabric,
-            ),
-            solid(
-                "painting",
-                [2.6 * sx, w - 0.01, 1.5],
-                [0.5, 0.012, 0.35],
-                0.0,
-                jitter([0.9, 0.8, 0.6]),
-                Texture::Painting,
-            ),
-            solid("door", [0.012, 3.1 * sy, 1.0], [0.012, 0.45, 1.0], 0.0, jitter([0.6, 0.45, 0.3]), Texture::Wood),
-            solid(
-                "poster",
-                [l - 0.01, 2.4 * sy, 1.6],
-                [0.012, 0.4, 0.5],
-                0.0,
-                jitter([0.8, 0.85, 0.9]),
-                Texture::Painting,
-            ),
-        ]);
+        let room = RoomSize { l, w, h, sx: l / 5.0, sy: w / 4.0 };
+        let mut solids = shell(&room, rng);
+        solids.extend(table(&room, rng));
+        solids.extend(furnishings(&room, rng));
         let texture_seed = rng.random::<u64>();
         Scene { size: Vector3::new(l, w, h), solids, light: Point3::new(l / 2.0, w / 2.0, h - 0.3), texture_seed }
     }

@@ -2,7 +2,7 @@
 //! outside it stops the command with an error naming the key, the value and the valid range,
 //! instead of failing every frame later (or panicking: `network.neighbours: 0` divides by it).
 
-use crate::params::Params;
+use super::{AppParams, LocalizerParams};
 
 /// A parameter outside its valid range.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -67,12 +67,38 @@ fn at_least(key: &'static str, value: u64, min: u64, range: &'static str) -> Res
     Err(InvalidParam { key, value: value.to_string(), range })
 }
 
-impl Params {
-    /// Checks every parameter with a range; the first one outside it is the error.
+impl AppParams {
+    /// Checks every parameter with a range, the localizer's first; the first one outside its
+    /// range is the error.
+    pub fn validate(&self) -> Result<(), InvalidParam> {
+        self.localizer.validate()?;
+        self.validate_limits()?;
+        self.validate_node()
+    }
+
+    fn validate_limits(&self) -> Result<(), InvalidParam> {
+        let l = &self.limits;
+        at_least("limits.max_correspondences", l.max_correspondences as u64, 1, "at least 1")?;
+        at_least("limits.max_image_side", l.max_image_side as u64, 1, "at least 1")?;
+        at_least("limits.max_map_points", l.max_map_points as u64, 1, "at least 1")?;
+        at_least("limits.max_record_bytes", l.max_record_bytes, 1024, "at least 1024 bytes")?;
+        at_least("limits.max_pending_frames", l.max_pending_frames as u64, 1, "at least 1")?;
+        real("limits.merge_duplicates_above", l.merge_duplicates_above, Range::Unit)
+    }
+
+    fn validate_node(&self) -> Result<(), InvalidParam> {
+        let n = &self.node;
+        real("node.diagnostics_window_s", n.diagnostics_window_s, Range::Positive)?;
+        real("node.min_rate_hz", n.min_rate_hz, Range::NonNegative)?;
+        at_least("node.queue_depth", n.queue_depth as u64, 1, "at least 1")
+    }
+}
+
+impl LocalizerParams {
+    /// Checks every parameter of the core with a range; the first one outside it is the error.
     pub fn validate(&self) -> Result<(), InvalidParam> {
         self.validate_pnp()?;
-        self.validate_rejection()?;
-        self.validate_limits()
+        self.validate_rejection()
     }
 
     fn validate_pnp(&self) -> Result<(), InvalidParam> {
@@ -148,16 +174,6 @@ impl Params {
         real("align.log_scale_window", a.log_scale_window, Range::Positive)?;
         real("align.min_pair_fraction", a.min_pair_fraction, Range::Unit)
     }
-
-    fn validate_limits(&self) -> Result<(), InvalidParam> {
-        let l = &self.limits;
-        at_least("limits.max_correspondences", l.max_correspondences as u64, 1, "at least 1")?;
-        at_least("limits.max_image_side", l.max_image_side as u64, 1, "at least 1")?;
-        at_least("limits.max_map_points", l.max_map_points as u64, 1, "at least 1")?;
-        at_least("limits.max_record_bytes", l.max_record_bytes, 1024, "at least 1024 bytes")?;
-        at_least("limits.max_pending_frames", l.max_pending_frames as u64, 1, "at least 1")?;
-        real("limits.merge_duplicates_above", l.merge_duplicates_above, Range::Unit)
-    }
 }
 
 #[cfg(test)]
@@ -166,24 +182,27 @@ mod tests {
 
     #[test]
     fn defaults_are_valid() {
-        assert_eq!(Params::default().validate(), Ok(()));
+        assert_eq!(AppParams::default().validate(), Ok(()));
     }
 
     #[test]
     fn bad_values_name_key_value_and_range() {
-        let cases: Vec<(&str, Box<dyn Fn(&mut Params)>)> = vec![
-            ("pnp.threshold_px", Box::new(|p| p.pnp.threshold_px = -1.0)),
-            ("pnp.threshold_px", Box::new(|p| p.pnp.threshold_px = f64::NAN)),
-            ("pnp.confidence", Box::new(|p| p.pnp.confidence = 2.0)),
-            ("pnp.max_iterations", Box::new(|p| p.pnp.max_iterations = 0)),
-            ("network.tau", Box::new(|p| p.network.tau = 1.5)),
-            ("spectral.keep_ratio", Box::new(|p| p.spectral.keep_ratio = 5.0)),
-            ("verify.accept", Box::new(|p| p.verify.accept = 2.0)),
-            ("network.neighbours", Box::new(|p| p.network.neighbours = 0)),
+        let cases: Vec<(&str, Box<dyn Fn(&mut AppParams)>)> = vec![
+            ("pnp.threshold_px", Box::new(|p| p.localizer.pnp.threshold_px = -1.0)),
+            ("pnp.threshold_px", Box::new(|p| p.localizer.pnp.threshold_px = f64::NAN)),
+            ("pnp.confidence", Box::new(|p| p.localizer.pnp.confidence = 2.0)),
+            ("pnp.max_iterations", Box::new(|p| p.localizer.pnp.max_iterations = 0)),
+            ("network.tau", Box::new(|p| p.localizer.network.tau = 1.5)),
+            ("spectral.keep_ratio", Box::new(|p| p.localizer.spectral.keep_ratio = 5.0)),
+            ("verify.accept", Box::new(|p| p.localizer.verify.accept = 2.0)),
+            ("network.neighbours", Box::new(|p| p.localizer.network.neighbours = 0)),
             ("limits.max_correspondences", Box::new(|p| p.limits.max_correspondences = 0)),
+            ("node.queue_depth", Box::new(|p| p.node.queue_depth = 0)),
+            ("node.diagnostics_window_s", Box::new(|p| p.node.diagnostics_window_s = 0.0)),
+            ("node.min_rate_hz", Box::new(|p| p.node.min_rate_hz = f64::INFINITY)),
         ];
         for (key, set) in cases {
-            let mut p = Params::default();
+            let mut p = AppParams::default();
             set(&mut p);
             let err = p.validate().unwrap_err();
             assert_eq!(err.key, key);

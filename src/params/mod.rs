@@ -1,0 +1,134 @@
+//! Every parameter of angle-i2p. The core's ([`LocalizerParams`]: what [`crate::pipeline::Localizer`]
+//! needs) and the edges' ([`AppParams`]: topics, the live node, input limits) are separate types,
+//! so that the core depends on no edge; in a params file they sit side by side under
+//! `ros__parameters` (`params/angle_i2p.yaml`), as they always did. [`resolve`] layers the
+//! sources: defaults < params file < `--ros-args` params files < `-p name:=value`.
+
+mod node;
+pub mod resolve;
+pub mod ros_args;
+mod topics;
+pub mod tree;
+pub mod validate;
+
+use serde::{Deserialize, Serialize};
+
+use crate::consistency::ScaleShiftParams;
+use crate::geometry::DepthKind;
+use crate::limits::InputLimits;
+use crate::pipeline::{CascadeParams, FinalRefine, Method};
+use crate::pnp::PnpParams;
+use crate::reject::network::NetworkParams;
+use crate::reject::SpectralParams;
+use crate::verify::VerifyParams;
+
+pub use node::{MapQos, NodeParams};
+pub use resolve::{resolve, resolve_cli, Layers, ResolveError};
+pub use ros_args::{ArgsError, LogLevel, Names, ParamOverride, Remap, RosArgs, DEFAULT_NODE_NAME};
+pub use topics::TopicMap;
+pub use validate::InvalidParam;
+
+/// What the localizer (the pure core) is configured with.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LocalizerParams {
+    /// Outlier rejection before PnP.
+    pub method: Method,
+    /// The fast path: a budgeted LO-RANSAC that settles easy frames before any rejection.
+    pub cascade: CascadeParams,
+    /// What the prior's values mean: depth, inverse depth or affine-invariant disparity.
+    pub depth_kind: DepthKind,
+    /// Scale-and-shift alignment of the prior.
+    pub align: ScaleShiftParams,
+    /// The training-free spectral rejector.
+    pub spectral: SpectralParams,
+    /// The learned rejector (method `angle-i2p`).
+    pub network: NetworkParams,
+    /// Robust PnP.
+    pub pnp: PnpParams,
+    /// Verification of PnP's best hypotheses against the dense depth prior.
+    pub verify: VerifyParams,
+    /// Last refinement on every correspondence agreeing with the pose.
+    pub final_refine: FinalRefine,
+    /// Seed of every random choice (results are reproducible).
+    pub seed: u64,
+}
+
+/// Every parameter of a command or of the node: the localizer's, flat beside the edges' own.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AppParams {
+    /// The core's parameters; their keys sit at the top level (`method`, `pnp.*`, …).
+    #[serde(flatten)]
+    pub localizer: LocalizerParams,
+    /// Topic names.
+    pub topics: TopicMap,
+    /// The live node: queue, frame matching, TF, diagnostics, debug image.
+    pub node: NodeParams,
+    /// How much one input may make us hold or compute ([`crate::limits`]), enforced where
+    /// messages come in (bag reading, the node).
+    pub limits: InputLimits,
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+
+    fn shipped_params_file() -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("params/angle_i2p.yaml")
+    }
+
+    fn resolve_file(path: &Path) -> Result<AppParams, ResolveError> {
+        resolve_cli::<&str>(Some(path), &[])
+    }
+
+    #[test]
+    fn shipped_params_file_matches_the_defaults() {
+        let from_file = resolve_file(&shipped_params_file()).unwrap();
+        let defaults = AppParams::default();
+        assert_eq!(serde_yaml::to_string(&from_file).unwrap(), serde_yaml::to_string(&defaults).unwrap());
+    }
+
+    /// The shipped file claims to list every parameter: every default key is in it, and every
+    /// key in it is a parameter.
+    #[test]
+    fn shipped_params_file_lists_exactly_the_parameters() {
+        let text = std::fs::read_to_string(shipped_params_file()).unwrap();
+        let doc: serde_yaml::Value = serde_yaml::from_str(&text).unwrap();
+        let section = tree::undot(&doc["angle_i2p"]["ros__parameters"]);
+        let in_file = tree::leaf_keys(&section);
+        let defaults = tree::leaf_keys(&serde_yaml::to_value(AppParams::default()).unwrap());
+        let missing: Vec<&String> = defaults.iter().filter(|k| !in_file.contains(k)).collect();
+        let unknown: Vec<&String> = in_file.iter().filter(|k| !defaults.contains(k)).collect();
+        assert!(missing.is_empty(), "parameters missing from params/angle_i2p.yaml: {missing:?}");
+        assert!(unknown.is_empty(), "keys in params/angle_i2p.yaml that are no parameter: {unknown:?}");
+        assert!(defaults.len() > 100 && defaults.contains(&"pnp.prior_tolerance".to_string()), "{defaults:?}");
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected() {
+        let err = resolve_cli(None, &["methd:=ransac"]).unwrap_err().to_string();
+        assert!(err.contains("methd"), "{err}");
+        let err = resolve_cli(None, &["network.tauu:=0.4"]).unwrap_err().to_string();
+        assert!(err.contains("tauu"), "a nested typo must not pass silently: {err}");
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("p.yaml");
+        std::fs::write(&file, "angle_i2p:\n  ros__parameters:\n    network: {tauu: 0.4}\n").unwrap();
+        let err = resolve_file(&file).unwrap_err().to_string();
+        assert!(err.contains("tauu"), "{err}");
+    }
+
+    /// The localizer's keys and the edges' sections share one flat namespace: none may shadow another.
+    #[test]
+    fn the_localizer_and_edge_keys_do_not_collide() {
+        let top = |v: serde_yaml::Value| -> Vec<String> {
+            v.as_mapping().unwrap().keys().map(|k| k.as_str().unwrap().to_string()).collect()
+        };
+        let core = top(serde_yaml::to_value(LocalizerParams::default()).unwrap());
+        let mut edges = vec!["topics".to_string(), "node".to_string(), "limits".to_string()];
+        edges.extend(top(serde_yaml::to_value(NodeParams::default()).unwrap()));
+        assert!(core.iter().all(|k| !edges.contains(k)), "{core:?} vs {edges:?}");
+    }
+}

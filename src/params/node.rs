@@ -1,0 +1,113 @@
+//! Parameters of the live node only (`node.*`, or flat: `-p queue_depth:=4`): queue, frame
+//! matching, TF, diagnostics, debug image. The node reads them; they live here so that the
+//! parameters depend on no edge.
+
+use serde::{Deserialize, Serialize};
+
+/// Parameters of the live node only (the localizer's are in [`super::LocalizerParams`]). In a params file they
+/// sit beside the others under `ros__parameters` (flat, or under a `node:` mapping).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NodeParams {
+    /// Frames waiting for the worker; when full, the OLDEST waiting frame is dropped.
+    pub queue_depth: usize,
+    /// A frame whose parts have not all arrived this long after its first part is handed
+    /// out with what it has (or dropped when a required part is missing).
+    pub frame_timeout_ms: u64,
+    /// Parts whose `header.stamp` differ by at most this are joined into one frame
+    /// (0 = exact match, as in bags).
+    pub stamp_tolerance_ns: i64,
+    /// Broadcast `map → <camera frame>` on `/tf` (or `map → odom_frame`, see there).
+    pub publish_tf: bool,
+    /// When set, broadcast `map → odom_frame` = (map→camera) · (odom→camera)⁻¹ instead, with
+    /// `odom_frame → <camera frame>` (direct, or through one frame) heard on `tf_topic` /
+    /// `tf_static_topic`; a frame without it publishes no TF (counted). Empty: off.
+    pub odom_frame: String,
+    /// Drop frames (counted, reason `no_map`) until a map has arrived.
+    pub require_map: bool,
+    /// Wait for the depth prior before localizing a frame (only with a rejector that uses it).
+    pub expect_depth_prior: bool,
+    /// Period of the aggregated `/diagnostics` message.
+    pub diagnostics_period_ms: u64,
+    /// The recent window the diagnostics levels and topic rates are computed over.
+    pub diagnostics_window_s: f64,
+    /// Frames (and messages per input) per second below which the diagnostics WARN; 0: never.
+    pub min_rate_hz: f64,
+    /// Publish `debug_image_topic` (sensor_msgs/Image rgb8): the camera image with kept
+    /// correspondences green and rejected ones red. Subscribes to the compressed image topic
+    /// (`topics.image`) and to `image_raw_topic` (sensor_msgs/Image rgb8, bgr8, mono8, rgba8,
+    /// bgra8), and waits for one of them.
+    pub debug_image: bool,
+    pub debug_image_topic: String,
+    pub image_raw_topic: String,
+    /// Output topics that are not in the topic map.
+    pub diagnostics_topic: String,
+    pub tf_topic: String,
+    /// Static transforms, read with `odom_frame` set.
+    pub tf_static_topic: String,
+    /// Durability of the map subscription (see [`MapQos`]).
+    pub map_qos: MapQos,
+    /// A PLY or PCD file read as the map at start (ASCII or binary); empty: the map comes only
+    /// from `topics.map`. A map on the topic later replaces it.
+    pub map_path: String,
+    /// The frame of the points in `map_path`.
+    pub map_frame_id: String,
+    /// geometry_msgs/PoseWithCovarianceStamped of the camera in the map: a gate on the poses
+    /// (see `crate::node::initial_pose`), `~/relocalize` drops it.
+    pub initialpose_topic: String,
+    /// The gate's half-width in standard deviations of the initial pose's covariance …
+    pub initialpose_gate_sigmas: f64,
+    /// … but at least this far (metres) …
+    pub initialpose_min_radius_m: f64,
+    /// … and this much rotation (degrees).
+    pub initialpose_min_angle_deg: f64,
+    /// ROS's `use_sim_time`: the node's own stamps (diagnostics) follow `/clock` when true.
+    /// Its outputs always carry the input messages' stamps.
+    pub use_sim_time: bool,
+}
+
+/// How the map topic is subscribed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MapQos {
+    /// Both a transient-local reader (a latched map published before the node started) and a
+    /// volatile one (a volatile publisher, e.g. `ros2 bag play` of a bag without
+    /// `offered_qos_profiles`); the same map heard twice is taken once.
+    #[default]
+    Auto,
+    /// Reliable, transient local: only latched publishers match.
+    TransientLocal,
+    /// Reliable, volatile: every publisher matches, a map published before the node started is missed.
+    Volatile,
+}
+
+impl Default for NodeParams {
+    fn default() -> Self {
+        Self {
+            queue_depth: 2,
+            frame_timeout_ms: 500,
+            stamp_tolerance_ns: 0,
+            publish_tf: true,
+            odom_frame: String::new(),
+            require_map: true,
+            expect_depth_prior: true,
+            diagnostics_period_ms: 1000,
+            diagnostics_window_s: 5.0,
+            min_rate_hz: 1.0,
+            debug_image: false,
+            debug_image_topic: "angle_i2p/debug_image".into(),
+            image_raw_topic: "camera/image_raw".into(),
+            diagnostics_topic: "/diagnostics".into(),
+            tf_topic: "/tf".into(),
+            tf_static_topic: "/tf_static".into(),
+            map_qos: MapQos::Auto,
+            map_path: String::new(),
+            map_frame_id: "map".into(),
+            initialpose_topic: "initialpose".into(),
+            initialpose_gate_sigmas: 3.0,
+            initialpose_min_radius_m: 0.5,
+            initialpose_min_angle_deg: 15.0,
+            use_sim_time: false,
+        }
+    }
+}
