@@ -13,46 +13,14 @@ pub mod validate;
 
 use serde::{Deserialize, Serialize};
 
-use crate::consistency::ScaleShiftParams;
-use crate::geometry::DepthKind;
 use crate::limits::InputLimits;
-use crate::pipeline::{CascadeParams, FinalRefine, Method};
-use crate::pnp::PnpParams;
-use crate::reject::network::NetworkParams;
-use crate::reject::SpectralParams;
-use crate::verify::VerifyParams;
+pub use crate::pipeline::LocalizerParams;
 
 pub use node::{MapQos, NodeParams};
 pub use resolve::{resolve, resolve_cli, Layers, ResolveError};
 pub use ros_args::{ArgsError, LogLevel, Names, ParamOverride, Remap, RosArgs, DEFAULT_NODE_NAME};
 pub use topics::TopicMap;
 pub use validate::InvalidParam;
-
-/// What the localizer (the pure core) is configured with.
-#[derive(Clone, Debug, Default, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct LocalizerParams {
-    /// Outlier rejection before PnP.
-    pub method: Method,
-    /// The fast path: a budgeted LO-RANSAC that settles easy frames before any rejection.
-    pub cascade: CascadeParams,
-    /// What the prior's values mean: depth, inverse depth or affine-invariant disparity.
-    pub depth_kind: DepthKind,
-    /// Scale-and-shift alignment of the prior.
-    pub align: ScaleShiftParams,
-    /// The training-free spectral rejector.
-    pub spectral: SpectralParams,
-    /// The learned rejector (method `angle-i2p`).
-    pub network: NetworkParams,
-    /// Robust PnP.
-    pub pnp: PnpParams,
-    /// Verification of PnP's best hypotheses against the dense depth prior.
-    pub verify: VerifyParams,
-    /// Last refinement on every correspondence agreeing with the pose.
-    pub final_refine: FinalRefine,
-    /// Seed of every random choice (results are reproducible).
-    pub seed: u64,
-}
 
 /// Every parameter of a command or of the node: the localizer's, flat beside the edges' own.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]

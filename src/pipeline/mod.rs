@@ -8,16 +8,17 @@ use serde::{Deserialize, Serialize};
 
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
-use crate::params::LocalizerParams;
 use crate::pnp::{solve_pnp_ransac, Guidance, PnpError, PnpParams, PnpSolution, Problem};
 use crate::reject::network::{NetworkError, NetworkRejector};
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
 use crate::verify::{PriorVerifier, RenderMap};
 
 mod cascade;
+mod params;
 mod refine;
 
 pub use cascade::{CascadeParams, FastPathCheck};
+pub use params::LocalizerParams;
 pub use refine::FinalRefine;
 
 /// How outliers are rejected before PnP.
