@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use crate::frame::Frame;
 use crate::frame::{Assembled, FramePart, IncompleteFrame, MapCloud, PartKind};
 use crate::limits::InputLimits;
-use crate::msgs::{self, convert, from_cdr, MsgError};
+use crate::msgs::{convert, from_cdr, MsgError};
 
 /// Why a bag could not be read or written; every variant names the file.
 #[derive(Debug, thiserror::Error)]
@@ -141,50 +141,17 @@ pub fn decode_part(kind: PartKind, data: &[u8]) -> Result<FramePart, MsgError> {
     decode_part_limited(kind, data, &InputLimits::default())
 }
 
-fn check_side(what: &'static str, width: u32, height: u32, limits: &InputLimits) -> Result<(), MsgError> {
-    crate::limits::check_image_side(what, width, height, limits).map_err(|reason| MsgError::Invalid { what, reason })
-}
-
 /// Decodes one frame input message into its part; a CameraInfo or depth image larger than
-/// `limits.max_image_side` is refused.
+/// `limits.max_image_side` is refused (the conversions are [`convert`]'s, shared with the node).
 pub fn decode_part_limited(kind: PartKind, data: &[u8], limits: &InputLimits) -> Result<FramePart, MsgError> {
-    Ok(match kind {
-        PartKind::CameraInfo => {
-            let m: msgs::CameraInfo = from_cdr(data)?;
-            check_side("CameraInfo", m.width, m.height, limits)?;
-            FramePart::CameraInfo {
-                stamp: convert::stamp(&m.header),
-                intrinsics: convert::intrinsics_from_camera_info(&m)?,
-            }
-        }
-        PartKind::Correspondences => {
-            let m: msgs::Correspondences = from_cdr(data)?;
-            FramePart::Correspondences {
-                stamp: convert::stamp(&m.header),
-                correspondences: convert::correspondences_from_msg(&m)?,
-                camera_frame_id: m.header.frame_id,
-                map_frame_id: m.map_frame_id,
-            }
-        }
-        PartKind::DepthPrior => {
-            let m: msgs::Image = from_cdr(data)?;
-            check_side("depth prior", m.width, m.height, limits)?;
-            FramePart::DepthPrior { stamp: convert::stamp(&m.header), depth: convert::depth_from_image(&m)? }
-        }
-        PartKind::Image => {
-            let m: msgs::CompressedImage = from_cdr(data)?;
-            FramePart::Image { stamp: convert::stamp(&m.header), image: convert::encoded_image(&m) }
-        }
-        PartKind::GroundTruthPose => {
-            let m: msgs::PoseStamped = from_cdr(data)?;
-            FramePart::GroundTruthPose { stamp: convert::stamp(&m.header), pose: convert::isometry_from_pose(&m.pose)? }
-        }
-        PartKind::GroundTruthDepth => {
-            let m: msgs::Image = from_cdr(data)?;
-            check_side("ground-truth depth", m.width, m.height, limits)?;
-            FramePart::GroundTruthDepth { stamp: convert::stamp(&m.header), depth: convert::depth_from_image(&m)? }
-        }
-    })
+    match kind {
+        PartKind::CameraInfo => convert::camera_info_part(&from_cdr(data)?, limits),
+        PartKind::Correspondences => convert::correspondences_part(from_cdr(data)?),
+        PartKind::DepthPrior => convert::depth_prior_part(&from_cdr(data)?, limits),
+        PartKind::Image => Ok(convert::compressed_image_part(&from_cdr(data)?)),
+        PartKind::GroundTruthPose => convert::ground_truth_pose_part(&from_cdr(data)?),
+        PartKind::GroundTruthDepth => convert::ground_truth_depth_part(&from_cdr(data)?, limits),
+    }
 }
 
 /// Reads the map and all frames of a bag, joining topics by `header.stamp`, with the default
@@ -261,6 +228,7 @@ pub fn write_input_bag(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::msgs;
     use crate::frame::{Correspondence, EncodedImage, GroundTruth, Stamp};
     use crate::geometry::{DepthImage, Intrinsics};
     use nalgebra::{Isometry3, Point2, Point3, Vector3};
