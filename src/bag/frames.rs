@@ -11,7 +11,7 @@ use std::collections::{HashMap, VecDeque};
 use std::path::Path;
 
 use super::{decode_part_limited, BagError, BagMessages, MessageIssue, ReadOptions, TopicMap};
-use crate::frame::{Assembled, FrameAssembler, IncompleteFrame, MapCloud, PartKind, Stamp};
+use crate::frame::{Assembled, FrameAssembler, IncompleteFrame, MapCloud, MonotonicNs, PartKind, Stamp};
 use crate::limits::{limit_correspondences, limit_map, InputLimits, LimitCounts};
 use crate::msgs::{self, convert, from_cdr, RosMessage};
 
@@ -85,6 +85,7 @@ pub fn limit_frame(item: Assembled, limits: &InputLimits, counts: &mut LimitCoun
         errors: Vec::new(),
         dropped: false,
         repeat: false,
+        late_parts: false,
         has_correspondences: true,
     });
     report.errors.extend(notes);
@@ -99,6 +100,8 @@ pub struct FrameStream {
     assembler: FrameAssembler,
     ready: VecDeque<Assembled>,
     finished: bool,
+    /// The latest log time read.
+    now: MonotonicNs,
     /// The bag's map (first map message), if one decoded.
     pub map: Option<MapCloud>,
     /// Map messages that failed or were left out, and what the limits changed in the map.
@@ -148,6 +151,7 @@ impl FrameStream {
             assembler: FrameAssembler::new(&expected).with_repeat_detection(),
             ready: VecDeque::new(),
             finished: false,
+            now: 0,
             map,
             issues,
             correspondence_messages,
@@ -160,18 +164,21 @@ impl FrameStream {
         while self.ready.is_empty() && !self.finished {
             let Some(m) = self.messages.next().transpose()? else {
                 self.finished = true;
-                self.ready.extend(self.assembler.finish());
+                self.ready.extend(self.assembler.finish(self.now));
                 break;
             };
+            // The bag's clock: log times (only repeat detection reads it here, which has no window).
+            self.now = self.now.max(m.log_time.min(i64::MAX as u64) as MonotonicNs);
             let Some(kind) = self.topics.part_of(m.topic()) else { continue };
             let done = match decode_part_limited(kind, &m.data, &self.limits) {
-                Ok(part) => self.assembler.push(part),
+                Ok(part) => self.assembler.push(part, self.now),
                 Err(e) => {
                     // Attribute the failure to the message's stamp when its header is readable.
                     let stamp: Stamp = msgs::peek_header(&m.data)
                         .map(|h| convert::stamp(&h))
                         .unwrap_or(m.log_time.min(i64::MAX as u64) as Stamp);
-                    self.assembler.push_error(stamp, kind, format!("{} at stamp {stamp}: {e}", m.topic()))
+                    let reason = format!("{} at stamp {stamp}: {e}", m.topic());
+                    self.assembler.push_error(stamp, kind, reason, self.now)
                 }
             };
             self.ready.extend(done);
@@ -180,7 +187,7 @@ impl FrameStream {
                     "still incomplete when more than {} frames were waiting (limits.max_pending_frames)",
                     self.limits.max_pending_frames
                 );
-                self.ready.extend(self.assembler.take_oldest(reason));
+                self.ready.extend(self.assembler.take_oldest(reason, self.now));
             }
         }
         Ok(self.ready.pop_front().map(|a| limit_frame(a, &self.limits, &mut self.limit_counts)))

@@ -195,6 +195,7 @@ pub fn write_input_bag(
     map: &MapCloud,
     frames: &[Frame],
 ) -> Result<(), BagError> {
+    let dir = dir.as_ref();
     let mut w = BagWriter::create(dir)?;
     let first = frames.iter().map(|f| f.stamp).min().unwrap_or(100_000_000);
     let map_stamp = first.saturating_sub(100_000_000).max(0);
@@ -205,7 +206,9 @@ pub fn write_input_bag(
         let (t, cam) = (f.stamp, f.camera_frame_id.as_str());
         w.write(&topics.camera_info, t, &convert::camera_info(t, cam, &f.intrinsics))?;
         if let Some(image) = &f.image {
-            w.write(&topics.image, t, &convert::compressed_image(t, cam, image))?;
+            let msg = convert::compressed_image_msg(t, cam, image)
+                .map_err(|e| BagError::Write { path: dir.to_path_buf(), reason: e.to_string() })?;
+            w.write(&topics.image, t, &msg)?;
         }
         if let Some(prior) = &f.depth_prior {
             w.write(&topics.depth_prior, t, &convert::image_32fc1(t, cam, prior))?;
@@ -229,7 +232,7 @@ pub fn write_input_bag(
 mod tests {
     use super::*;
     use crate::msgs;
-    use crate::frame::{Correspondence, EncodedImage, GroundTruth, Stamp};
+    use crate::frame::{CameraImage, Correspondence, EncodedImage, GroundTruth, Stamp};
     use crate::geometry::{DepthImage, Intrinsics};
     use nalgebra::{Isometry3, Point2, Point3, Vector3};
 
@@ -245,7 +248,10 @@ mod tests {
                 score: 0.75,
             }],
             depth_prior: with_prior.then(|| DepthImage::new(2, 1, vec![1.5, 2.5])),
-            image: Some(EncodedImage { format: "jpeg".into(), data: vec![0xff, 0xd8, 0xff, 0xd9] }),
+            image: Some(CameraImage::Compressed(EncodedImage {
+                format: "jpeg".into(),
+                data: vec![0xff, 0xd8, 0xff, 0xd9],
+            })),
             ground_truth: Some(GroundTruth {
                 pose: Some(Isometry3::new(Vector3::new(1.0, 2.0, 3.0), Vector3::new(0.0, 0.5, 0.0))),
                 depth: Some(DepthImage::new(4, 2, vec![1.0, 0.0, 2.5, 0.5, 0.0, 0.0, 0.0, 1.234])),
@@ -272,7 +278,9 @@ mod tests {
         assert_eq!(a.intrinsics, b.intrinsics);
         assert_eq!(a.correspondences, b.correspondences);
         assert_eq!(a.depth_prior, b.depth_prior);
-        assert_eq!(a.image.as_ref().unwrap().data, b.image.as_ref().unwrap().data);
+        let compressed = |f: &Frame| f.image.as_ref().and_then(CameraImage::compressed).map(|i| i.data.clone());
+        assert_eq!(compressed(a), compressed(b));
+        assert!(compressed(a).is_some());
         let (ga, gb) = (a.ground_truth.as_ref().unwrap(), b.ground_truth.as_ref().unwrap());
         assert!((ga.pose.unwrap().to_homogeneous() - gb.pose.unwrap().to_homogeneous()).norm() < 1e-12);
         assert_eq!(ga.depth, gb.depth);

@@ -19,15 +19,20 @@ pub mod dds;
 pub mod diagnostics;
 pub mod health;
 pub mod image;
+mod ingest;
 pub mod initial_pose;
 pub mod install;
+mod log;
 pub mod map_file;
+mod outputs;
 pub mod qos_watch;
 pub mod queue;
+mod readers;
 mod run;
 pub mod services;
 pub mod tf;
 mod topics;
+mod worker;
 
 pub use args::{resolve_params, ArgsError, LogLevel, MapQos, Names, NodeParams, ResolvedParams, RosArgs};
 pub use diagnostics::{status_name, status_value, Stats, LOCALIZATION_TASK};
@@ -62,7 +67,7 @@ pub fn run(config: NodeConfig) -> anyhow::Result<()> {
         }
     }
     if let Some(level) = args.log_level {
-        run::set_log_level(level);
+        log::set_log_level(level);
     }
     if let Some(enclave) = &args.enclave {
         eprintln!("[angle_i2p] WARN enclave {enclave:?} accepted but not applied: DDS security is not built in");

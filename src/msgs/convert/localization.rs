@@ -24,5 +24,9 @@ pub fn localization_messages(loc: &Localization) -> LocalizationMessages {
         (Some(pose), Some(cov)) => Some(pose_with_covariance_stamped(t, map, pose, cov)),
         _ => None,
     };
-    LocalizationMessages { pose, pose_with_covariance, kept: correspondences_msg(t, &loc.camera_frame_id, map, &loc.kept) }
+    LocalizationMessages {
+        pose,
+        pose_with_covariance,
+        kept: correspondences_msg(t, &loc.camera_frame_id, map, &loc.kept),
+    }
 }

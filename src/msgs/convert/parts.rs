@@ -5,9 +5,10 @@
 //! [`InputLimits`]) and returns the part stamped with the message's `header.stamp`.
 
 use super::{
-    correspondences_from_msg, depth_from_image, encoded_image, intrinsics_from_camera_info, isometry_from_pose, stamp,
+    compressed_image, correspondences_from_msg, depth_from_image, encoded_image, intrinsics_from_camera_info,
+    isometry_from_pose, stamp,
 };
-use crate::frame::FramePart;
+use crate::frame::{CameraImage, EncodedImage, FramePart, Stamp};
 use crate::limits::InputLimits;
 use crate::msgs::{CameraInfo, CompressedImage, Correspondences, Image, MsgError, PoseStamped};
 
@@ -41,7 +42,24 @@ pub fn depth_prior_part(msg: &Image, limits: &InputLimits) -> Result<FramePart, 
 
 /// A `sensor_msgs/CompressedImage` → the frame's camera image, as it came (not decoded).
 pub fn compressed_image_part(msg: &CompressedImage) -> FramePart {
-    FramePart::Image { stamp: stamp(&msg.header), image: encoded_image(msg) }
+    FramePart::Image { stamp: stamp(&msg.header), image: CameraImage::Compressed(encoded_image(msg)) }
+}
+
+/// The `sensor_msgs/CompressedImage` of a frame's camera image (a decoded one as PNG): the
+/// inverse of [`compressed_image_part`], for writing input bags.
+pub fn compressed_image_msg(stamp: Stamp, frame_id: &str, image: &CameraImage) -> Result<CompressedImage, MsgError> {
+    let png;
+    let encoded = match image {
+        CameraImage::Compressed(e) => e,
+        CameraImage::Raw(rgb) => {
+            let mut data = Vec::new();
+            rgb.write_to(&mut std::io::Cursor::new(&mut data), image::ImageFormat::Png)
+                .map_err(|e| MsgError::Invalid { what: "camera image", reason: format!("PNG encoding failed: {e}") })?;
+            png = EncodedImage { format: "png".into(), data };
+            &png
+        }
+    };
+    Ok(compressed_image(stamp, frame_id, encoded))
 }
 
 /// A `geometry_msgs/PoseStamped` (camera-to-map) → the frame's ground-truth pose.
