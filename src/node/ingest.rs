@@ -154,13 +154,36 @@ impl Ingest {
         lock(&self.stats).frames_received += opened - self.opened_counted;
         self.opened_counted = opened;
         let Some(done) = done else { return };
-        match crate::bag::limit_frame(done, &self.limits, &mut self.limit_counts) {
+        let before = self.limit_counts.clone();
+        let limited = crate::bag::limit_frame(done, &self.limits, &mut self.limit_counts);
+        self.count_limited(&before, limited.stamp());
+        match limited {
             Assembled::Complete(frame) => self.enqueue(frame),
             Assembled::Partial(frame, report) => {
                 self.count_incomplete(&report);
                 self.enqueue(frame);
             }
             Assembled::Dropped(report) => self.count_incomplete(&report),
+        }
+    }
+
+    /// Names what the input limits changed in the frame at `stamp` (its report says how much).
+    fn count_limited(&self, before: &LimitCounts, stamp: Stamp) {
+        let after = &self.limit_counts;
+        let changes = [
+            (
+                after.frames_over_correspondence_limit,
+                before.frames_over_correspondence_limit,
+                "correspondences_over_limit",
+            ),
+            (after.frames_with_duplicates_merged, before.frames_with_duplicates_merged, "duplicates_merged"),
+            (after.frames_with_scores_clamped, before.frames_with_scores_clamped, "scores_clamped"),
+        ];
+        let mut s = lock(&self.stats);
+        for (now, was, reason) in changes {
+            if now > was {
+                s.error(reason, format!("frame {stamp}: {reason} (see the frame's report)"));
+            }
         }
     }
 

@@ -106,3 +106,31 @@ fn late_parts_and_repeated_stamps_are_named_and_a_restart_is_not() {
     assert_eq!((s.frames_in, s.drop_count("queue_full")), (3, 1));
     assert_eq!(s.frames_received, s.drops.values().sum::<u64>() + i.queue.len() as u64);
 }
+
+#[test]
+fn what_the_limits_change_is_counted_by_name() {
+    let limits = InputLimits { max_correspondences: 1, ..InputLimits::default() };
+    let rules = IngestRules {
+        expected: vec![],
+        stamp_tolerance_ns: 0,
+        frame_timeout: Duration::from_millis(100),
+        require_map: false,
+        limits,
+    };
+    let mut i = Ingest::new(rules, Arc::new(DropOldestQueue::new(2)), Arc::new(Mutex::new(Stats::default())));
+    let c = |score: f32| crate::frame::Correspondence {
+        pixel: nalgebra::Point2::new(1.0, 2.0 + f64::from(score)),
+        point: nalgebra::Point3::new(0.0, 0.0, 1.0),
+        score,
+    };
+    i.on_input(info(1), 0);
+    let corr = FramePart::Correspondences {
+        stamp: 1,
+        camera_frame_id: "cam".into(),
+        map_frame_id: "map".into(),
+        correspondences: vec![c(0.2), c(0.9)],
+    };
+    i.on_input(Input::Part(corr), 0);
+    assert_eq!(i.queue.len(), 1, "the frame goes on, trimmed");
+    assert_eq!(lock(&i.stats).error_count("correspondences_over_limit"), 1);
+}
