@@ -12,7 +12,7 @@ use std::path::Path;
 
 use super::{decode_part_limited, BagError, BagMessages, MessageIssue, ReadOptions, TopicMap};
 use crate::frame::{Assembled, FrameAssembler, IncompleteFrame, MapCloud, MonotonicNs, PartKind, Stamp};
-use crate::limits::{limit_correspondences, limit_map, InputLimits, LimitCounts};
+use crate::limits::{limit_correspondences, InputLimits, LimitCounts};
 use crate::msgs::{self, convert, from_cdr, RosMessage};
 
 /// The type each input topic must carry.
@@ -32,34 +32,12 @@ pub fn expected_types(topics: &TopicMap) -> HashMap<String, &'static str> {
     out
 }
 
-/// A decoded map and what the limits changed in it.
-pub struct DecodedMap {
-    pub map: MapCloud,
-    pub notes: Vec<String>,
-}
+pub use crate::msgs::convert::DecodedMap;
 
-/// The map of a PointCloud2 message with the limits applied, and what was changed.
+/// The map of a PointCloud2 message with the limits applied, and what was changed (the
+/// conversion the node's map reader uses too).
 pub fn decode_map(data: &[u8], limits: &InputLimits) -> Result<DecodedMap, msgs::MsgError> {
-    let cloud: msgs::PointCloud2 = from_cdr(data)?;
-    let total = cloud.width as usize * cloud.height as usize;
-    let mut map = convert::map_cloud_from_point_cloud(&cloud)?;
-    let mut notes = Vec::new();
-    let non_finite = total.saturating_sub(map.points.len());
-    if non_finite > 0 {
-        notes.push(format!("{non_finite} of {total} map points are not finite; dropped"));
-    }
-    let left_out = limit_map(&mut map, limits);
-    if left_out > 0 {
-        notes.push(format!(
-            "map of {} points: kept an even subsample of {} (limits.max_map_points), left out {left_out}",
-            map.points.len() + left_out,
-            map.points.len()
-        ));
-    }
-    if map.points.is_empty() {
-        notes.push("the map has no usable point: frames are localized without it (no verification)".into());
-    }
-    Ok(DecodedMap { map, notes })
+    convert::map_part(&from_cdr(data)?, limits)
 }
 
 /// Applies the per-frame limits to an assembled frame; anomalies join its issues, every change

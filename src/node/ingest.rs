@@ -12,6 +12,7 @@ use super::queue::DropOldestQueue;
 use crate::frame::Stamp;
 use crate::frame::{Assembled, Frame, FrameAssembler, FramePart, IncompleteFrame, MapCloud, MonotonicNs, PartKind};
 use crate::limits::{InputLimits, LimitCounts};
+use crate::msgs::convert::DecodedMap;
 
 /// What a reader task hands to the ingest task.
 pub enum Input {
@@ -22,7 +23,8 @@ pub enum Input {
         stamp: Stamp,
         reason: String,
     },
-    Map(Result<MapCloud, String>),
+    /// A map, with what the limits changed in it.
+    Map(Result<DecodedMap, String>),
     /// The DDS sample could not be deserialized (no header to attribute it to).
     ReadError {
         topic: String,
@@ -128,13 +130,18 @@ impl Ingest {
         }
     }
 
-    fn set_map(&mut self, map: MapCloud) {
+    fn set_map(&mut self, decoded: DecodedMap) {
+        let DecodedMap { map, notes } = decoded;
         if self.map.as_deref().is_some_and(|m| m.frame_id == map.frame_id && m.points == map.points) {
             // `map_qos: auto` reads the map twice from a latched publisher.
             return;
         }
         info(format!("map received: {} points in frame {:?}", map.points.len(), map.frame_id));
         let mut s = lock(&self.stats);
+        for note in notes {
+            warn(format!("map: {note}"));
+            s.error("map_cleaned", format!("map: {note}"));
+        }
         s.maps_received += 1;
         s.map_points = map.points.len();
         self.map = Some(Arc::new(map));

@@ -62,7 +62,8 @@ fn no_map_timeouts_queue_drops_and_bad_parts_are_counted() {
         frame(&mut i, s, 0);
     }
     assert_eq!(lock(&i.stats).drop_count("no_map"), 2);
-    i.on_input(Input::Map(Ok(MapCloud { frame_id: "map".into(), points: vec![] })), 0);
+    let map = MapCloud { frame_id: "map".into(), points: vec![] };
+    i.on_input(Input::Map(Ok(DecodedMap { map, notes: vec!["no usable point".into()] })), 0);
     for s in [3, 4, 5] {
         frame(&mut i, s, 0);
     }
@@ -81,6 +82,7 @@ fn no_map_timeouts_queue_drops_and_bad_parts_are_counted() {
     assert_eq!(s.drop_count("missing_correspondences"), 1);
     assert_eq!(s.drop_count("missing_camera_info"), 1);
     assert_eq!(s.error_count("invalid_correspondences"), 1);
+    assert_eq!(s.error_count("map_cleaned"), 1);
     assert_eq!(s.frames_in, 5);
     // Every frame heard of: dropped (with a reason) or waiting in the queue.
     assert_eq!(s.frames_received, 7);

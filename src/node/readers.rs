@@ -171,16 +171,12 @@ fn map_qos_profiles(map_qos: MapQos) -> Vec<ros2_client::QosProfile> {
     }
 }
 
-/// The map, within `limits.max_map_points`.
+/// The map, cleaned and within `limits.max_map_points` (as bag replay takes it).
 pub fn subscribe_map(r: &mut Readers, topics: &Topics, map_qos: MapQos, limits: &InputLimits) -> Result<()> {
     for qos in map_qos_profiles(map_qos) {
         let limits = limits.clone();
         read(r, &topics.map, &qos, move |m: msgs::PointCloud2| {
-            let map = convert::map_cloud_from_point_cloud(&m).map(|mut map| {
-                crate::limits::limit_map(&mut map, &limits);
-                map
-            });
-            Some(Input::Map(map.map_err(|e| e.to_string())))
+            Some(Input::Map(convert::map_part(&m, &limits).map_err(|e| e.to_string())))
         })?;
     }
     Ok(())
@@ -238,7 +234,7 @@ pub fn spawn_services(
         let (response, map) = services::load_map_answer(&map_path, &map_frame_id);
         if let Some(map) = map {
             // The node is shutting down when the ingest side is gone.
-            let _ = load_map_tx.blocking_send(Input::Map(Ok(map)));
+            let _ = load_map_tx.blocking_send(Input::Map(Ok(convert::DecodedMap { map, notes: Vec::new() })));
         }
         response
     };

@@ -26,7 +26,7 @@ use super::readers::{self, Readers};
 use super::tf::TfBuffer;
 use super::topics::Topics;
 use crate::frame::{MonotonicNs, PartKind, Stamp};
-use crate::msgs;
+use crate::msgs::{self, convert::DecodedMap};
 use crate::params::Params;
 use crate::pipeline::{Localizer, Method};
 
@@ -170,7 +170,7 @@ pub async fn run_node(names: Names, resolved: ResolvedParams, record: Option<Pat
     if !s.np.map_path.is_empty() {
         let loaded = map_file::load(Path::new(&s.np.map_path), &s.np.map_frame_id)?;
         info(format!("map file {}: {} non-finite points left out", s.np.map_path, loaded.non_finite));
-        ingest.on_input(Input::Map(Ok(loaded.map)), 0);
+        ingest.on_input(Input::Map(Ok(DecodedMap { map: loaded.map, notes: Vec::new() })), 0);
     }
     log_started(&s, &context, &diagnostics.fq_name);
     // 4. The loop.

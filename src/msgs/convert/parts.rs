@@ -1,4 +1,4 @@
-//! Message → frame part: one conversion per input message, used by bag replay
+//! Message → frame part (and the map): one conversion per input message, used by bag replay
 //! ([`crate::bag::decode_part_limited`]) and by the live node's readers alike.
 //!
 //! Each function validates what it converts (finite values, sizes within the
@@ -6,11 +6,11 @@
 
 use super::{
     compressed_image, correspondences_from_msg, depth_from_image, encoded_image, intrinsics_from_camera_info,
-    isometry_from_pose, stamp,
+    isometry_from_pose, map_cloud_from_point_cloud, stamp,
 };
-use crate::frame::{CameraImage, EncodedImage, FramePart, Stamp};
+use crate::frame::{CameraImage, EncodedImage, FramePart, MapCloud, Stamp};
 use crate::limits::InputLimits;
-use crate::msgs::{CameraInfo, CompressedImage, Correspondences, Image, MsgError, PoseStamped};
+use crate::msgs::{CameraInfo, CompressedImage, Correspondences, Image, MsgError, PointCloud2, PoseStamped};
 
 /// Refuses an image side over `limits.max_image_side` before anything is allocated for it.
 fn check_side(what: &'static str, width: u32, height: u32, limits: &InputLimits) -> Result<(), MsgError> {
@@ -60,6 +60,36 @@ pub fn compressed_image_msg(stamp: Stamp, frame_id: &str, image: &CameraImage) -
         }
     };
     Ok(compressed_image(stamp, frame_id, encoded))
+}
+
+/// A map as decoded, with what the limits changed in it (said, never silent).
+pub struct DecodedMap {
+    pub map: MapCloud,
+    pub notes: Vec<String>,
+}
+
+/// A `sensor_msgs/PointCloud2` → the map: non-finite points dropped, an even subsample within
+/// `limits.max_map_points`, each change noted.
+pub fn map_part(cloud: &PointCloud2, limits: &InputLimits) -> Result<DecodedMap, MsgError> {
+    let total = cloud.width as usize * cloud.height as usize;
+    let mut map = map_cloud_from_point_cloud(cloud)?;
+    let mut notes = Vec::new();
+    let non_finite = total.saturating_sub(map.points.len());
+    if non_finite > 0 {
+        notes.push(format!("{non_finite} of {total} map points are not finite; dropped"));
+    }
+    let left_out = crate::limits::limit_map(&mut map, limits);
+    if left_out > 0 {
+        notes.push(format!(
+            "map of {} points: kept an even subsample of {} (limits.max_map_points), left out {left_out}",
+            map.points.len() + left_out,
+            map.points.len()
+        ));
+    }
+    if map.points.is_empty() {
+        notes.push("the map has no usable point: frames are localized without it (no verification)".into());
+    }
+    Ok(DecodedMap { map, notes })
 }
 
 /// A `geometry_msgs/PoseStamped` (camera-to-map) → the frame's ground-truth pose.
