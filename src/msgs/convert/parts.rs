@@ -140,4 +140,18 @@ mod tests {
         nan.correspondences[0].u = f32::NAN;
         assert!(correspondences_part(nan).is_err());
     }
+
+    #[test]
+    fn a_decoded_camera_image_is_written_as_png_and_reads_back() {
+        let mut rgb = image::RgbImage::new(3, 2);
+        rgb.put_pixel(2, 1, image::Rgb([200, 100, 50]));
+        let msg = compressed_image_msg(5, "cam", &CameraImage::Raw(rgb.clone())).expect("png");
+        assert_eq!((msg.format.as_str(), super::super::stamp(&msg.header)), ("png", 5));
+        match compressed_image_part(&msg) {
+            FramePart::Image { stamp: 5, image: CameraImage::Compressed(e) } => {
+                assert_eq!(image::load_from_memory(&e.data).expect("decodes").to_rgb8(), rgb);
+            }
+            other => panic!("{other:?}"),
+        }
+    }
 }
