@@ -238,13 +238,13 @@ pub fn spawn_services(
         }
         response
     };
-    r.threads.push(services::spawn_trigger(r.node, &names.resolve("~/load_map"), load_map, |m| info(m))?);
+    r.threads.push(services::spawn_trigger(r.node, &names.resolve("~/load_map"), load_map, info)?);
     let gate = gate.clone();
     let relocalize = move || {
         let had = lock(&gate).take().is_some();
         let message = if had { "initial pose dropped: localizing globally" } else { "no initial pose was set" };
         services::TriggerResponse { success: true, message: message.into() }
     };
-    r.threads.push(services::spawn_trigger(r.node, &names.resolve("~/relocalize"), relocalize, |m| info(m))?);
+    r.threads.push(services::spawn_trigger(r.node, &names.resolve("~/relocalize"), relocalize, info)?);
     Ok(())
 }
