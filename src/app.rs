@@ -123,18 +123,14 @@ pub fn describe(f: &IncompleteFrame) -> String {
 
 fn write_localization(w: &mut BagWriter, topics: &TopicMap, loc: &Localization) -> Result<()> {
     let t = loc.stamp;
-    if let Some(pose) = &loc.pose {
-        w.write(&topics.pose, t, &convert::pose_stamped(t, &loc.map_frame_id, pose))?;
-        if let Some(cov) = &loc.covariance {
-            w.write(
-                &topics.pose_with_covariance,
-                t,
-                &convert::pose_with_covariance_stamped(t, &loc.map_frame_id, pose, cov),
-            )?;
-        }
+    let out = convert::localization_messages(loc);
+    if let Some(pose) = &out.pose {
+        w.write(&topics.pose, t, pose)?;
     }
-    let kept = convert::correspondences_msg(t, &loc.camera_frame_id, &loc.map_frame_id, &loc.kept);
-    w.write(&topics.output_correspondences, t, &kept)?;
+    if let Some(pose_with_covariance) = &out.pose_with_covariance {
+        w.write(&topics.pose_with_covariance, t, pose_with_covariance)?;
+    }
+    w.write(&topics.output_correspondences, t, &out.kept)?;
     w.write(DIAGNOSTICS_TOPIC, t, &localization_diagnostics(loc))?;
     Ok(())
 }

@@ -2,7 +2,8 @@
 //! an error naming the file (bag-level damage), a frame skipped or trimmed with its reason while
 //! the run goes on (frame-level damage), or a parameter error naming key, value and range.
 //! Every case runs the release binary as a user would (`replay`, `eval`, `synth`, `params`) and
-//! checks that it ends by itself with exit code 0 or 1: never a panic (101) or a signal.
+//! checks that it ends by itself with exit code 0 or 1: never a panic (101) or a signal. The
+//! live node's rows are in `bad_input/live_node.rs`.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -12,7 +13,12 @@ use angle_i2p::frame::{Frame, MapCloud};
 use angle_i2p::msgs::{self, convert};
 
 mod common;
+mod netns;
 use common::{binary, manifest};
+
+/// The live node's rows (over DDS, in a private network namespace).
+#[path = "bad_input/live_node.rs"]
+mod live_node;
 
 /// The first `n` frames and the map of the shipped hard bag.
 fn sample(n: usize) -> (MapCloud, Vec<Frame>) {

@@ -225,7 +225,8 @@ fn part(kind: PartKind, stamp: i64) -> FramePart {
         },
         PartKind::DepthPrior => FramePart::DepthPrior { stamp, depth: depth() },
         PartKind::Image => {
-            FramePart::Image { stamp, image: angle_i2p::frame::EncodedImage { format: "png".into(), data: vec![] } }
+            let image = angle_i2p::frame::EncodedImage { format: "png".into(), data: vec![] };
+            FramePart::Image { stamp, image: angle_i2p::frame::CameraImage::Compressed(image) }
         }
         PartKind::GroundTruthPose => FramePart::GroundTruthPose { stamp, pose: nalgebra::Isometry3::identity() },
         PartKind::GroundTruthDepth => FramePart::GroundTruthDepth { stamp, depth: depth() },
@@ -254,21 +255,24 @@ proptest! {
         steps in proptest::collection::vec(step(), 0..60),
         detect_repeats in any::<bool>(),
     ) {
-        let mut a = FrameAssembler::new(&expected);
+        let mut a = FrameAssembler::new(&expected).with_arrival_timeout(2);
         if detect_repeats {
             a = a.with_repeat_detection();
         }
         let mut out = Vec::new();
         let mut stamps = std::collections::BTreeSet::new();
+        // The assembler's clock: one tick a step, plus what an expiry skips ahead.
+        let mut now = 0i64;
         for s in steps {
+            now += 1;
             match s {
-                Step::Part(k, t) => { stamps.insert(t); out.extend(a.push(part(k, t))); }
-                Step::Error(k, t) => { stamps.insert(t); out.extend(a.push_error(t, k, "bad")); }
-                Step::Expire(now) => out.extend(a.expire(now, 2)),
-                Step::TakeOldest => out.extend(a.take_oldest("forced".into())),
+                Step::Part(k, t) => { stamps.insert(t); out.extend(a.push(part(k, t), now)); }
+                Step::Error(k, t) => { stamps.insert(t); out.extend(a.push_error(t, k, "bad", now)); }
+                Step::Expire(skip) => { now += skip.rem_euclid(4); out.extend(a.expire(now)) }
+                Step::TakeOldest => out.extend(a.take_oldest("forced".into(), now)),
             }
         }
-        out.extend(a.finish());
+        out.extend(a.finish(now));
         prop_assert_eq!(a.pending(), 0);
         let handed: std::collections::BTreeSet<i64> = out.iter().map(|x| x.stamp()).collect();
         prop_assert_eq!(handed, stamps);

@@ -166,6 +166,11 @@ fn expected_poses(input: &BagFrames) -> HashMap<i64, Option<nalgebra::Isometry3<
     input.frames.iter().map(|f| (f.stamp, localizer.process(f).pose)).collect()
 }
 
+/// The compressed camera image of a frame of the synth bag (JPEG).
+fn compressed(frame: &angle_i2p::frame::Frame) -> &angle_i2p::frame::EncodedImage {
+    frame.image.as_ref().and_then(angle_i2p::frame::CameraImage::compressed).expect("a compressed image")
+}
+
 /// The first number under `key` anywhere in `v` (a row of a JSON report).
 fn find_number(v: &serde_json::Value, key: &str) -> Option<f64> {
     match v {
@@ -709,7 +714,7 @@ fn inner_debug_image() {
     let check = |img: &msgs::Image, origin: &str| {
         let stamp = convert::stamp(&img.header);
         let frame = frames.iter().find(|f| f.stamp == stamp).unwrap_or_else(|| panic!("{origin}: stamp {stamp}"));
-        let jpeg = image::load_from_memory(&frame.image.as_ref().expect("image").data).expect("jpeg");
+        let jpeg = image::load_from_memory(&compressed(frame).data).expect("jpeg");
         assert_eq!((img.width, img.height, img.encoding.as_str()), (jpeg.width(), jpeg.height(), "rgb8"), "{origin}");
         assert_eq!(img.data.len(), (img.step * img.height) as usize, "{origin}");
         let px = |u: f64, v: f64| {
@@ -792,7 +797,7 @@ fn inner_raw_image_and_odom_tf() {
             loc.pose.is_some().then(|| (f.clone(), loc))
         })
         .expect("a frame with a pose");
-    let rgb = image::load_from_memory(&good.image.as_ref().expect("image").data).expect("jpeg").to_rgb8();
+    let rgb = image::load_from_memory(&compressed(&good).data).expect("jpeg").to_rgb8();
     let (w, h) = rgb.dimensions();
     let step = w * 3 + 4; // padded rows
     let mut bgr = vec![0u8; (step * h) as usize];

@@ -11,8 +11,8 @@ use std::collections::{HashMap, VecDeque};
 use std::path::Path;
 
 use super::{decode_part_limited, BagError, BagMessages, MessageIssue, ReadOptions, TopicMap};
-use crate::frame::{Assembled, FrameAssembler, IncompleteFrame, MapCloud, PartKind, Stamp};
-use crate::limits::{limit_correspondences, limit_map, InputLimits, LimitCounts};
+use crate::frame::{Assembled, FrameAssembler, IncompleteFrame, MapCloud, MonotonicNs, PartKind, Stamp};
+use crate::limits::{limit_correspondences, InputLimits, LimitCounts};
 use crate::msgs::{self, convert, from_cdr, RosMessage};
 
 /// The type each input topic must carry.
@@ -32,34 +32,12 @@ pub fn expected_types(topics: &TopicMap) -> HashMap<String, &'static str> {
     out
 }
 
-/// A decoded map and what the limits changed in it.
-pub struct DecodedMap {
-    pub map: MapCloud,
-    pub notes: Vec<String>,
-}
+pub use crate::msgs::convert::DecodedMap;
 
-/// The map of a PointCloud2 message with the limits applied, and what was changed.
+/// The map of a PointCloud2 message with the limits applied, and what was changed (the
+/// conversion the node's map reader uses too).
 pub fn decode_map(data: &[u8], limits: &InputLimits) -> Result<DecodedMap, msgs::MsgError> {
-    let cloud: msgs::PointCloud2 = from_cdr(data)?;
-    let total = cloud.width as usize * cloud.height as usize;
-    let mut map = convert::map_cloud_from_point_cloud(&cloud)?;
-    let mut notes = Vec::new();
-    let non_finite = total.saturating_sub(map.points.len());
-    if non_finite > 0 {
-        notes.push(format!("{non_finite} of {total} map points are not finite; dropped"));
-    }
-    let left_out = limit_map(&mut map, limits);
-    if left_out > 0 {
-        notes.push(format!(
-            "map of {} points: kept an even subsample of {} (limits.max_map_points), left out {left_out}",
-            map.points.len() + left_out,
-            map.points.len()
-        ));
-    }
-    if map.points.is_empty() {
-        notes.push("the map has no usable point: frames are localized without it (no verification)".into());
-    }
-    Ok(DecodedMap { map, notes })
+    convert::map_part(&from_cdr(data)?, limits)
 }
 
 /// Applies the per-frame limits to an assembled frame; anomalies join its issues, every change
@@ -85,6 +63,7 @@ pub fn limit_frame(item: Assembled, limits: &InputLimits, counts: &mut LimitCoun
         errors: Vec::new(),
         dropped: false,
         repeat: false,
+        late_parts: false,
         has_correspondences: true,
     });
     report.errors.extend(notes);
@@ -99,6 +78,8 @@ pub struct FrameStream {
     assembler: FrameAssembler,
     ready: VecDeque<Assembled>,
     finished: bool,
+    /// The latest log time read.
+    now: MonotonicNs,
     /// The bag's map (first map message), if one decoded.
     pub map: Option<MapCloud>,
     /// Map messages that failed or were left out, and what the limits changed in the map.
@@ -148,6 +129,7 @@ impl FrameStream {
             assembler: FrameAssembler::new(&expected).with_repeat_detection(),
             ready: VecDeque::new(),
             finished: false,
+            now: 0,
             map,
             issues,
             correspondence_messages,
@@ -160,18 +142,21 @@ impl FrameStream {
         while self.ready.is_empty() && !self.finished {
             let Some(m) = self.messages.next().transpose()? else {
                 self.finished = true;
-                self.ready.extend(self.assembler.finish());
+                self.ready.extend(self.assembler.finish(self.now));
                 break;
             };
+            // The bag's clock: log times (only repeat detection reads it here, which has no window).
+            self.now = self.now.max(m.log_time.min(i64::MAX as u64) as MonotonicNs);
             let Some(kind) = self.topics.part_of(m.topic()) else { continue };
             let done = match decode_part_limited(kind, &m.data, &self.limits) {
-                Ok(part) => self.assembler.push(part),
+                Ok(part) => self.assembler.push(part, self.now),
                 Err(e) => {
                     // Attribute the failure to the message's stamp when its header is readable.
                     let stamp: Stamp = msgs::peek_header(&m.data)
                         .map(|h| convert::stamp(&h))
                         .unwrap_or(m.log_time.min(i64::MAX as u64) as Stamp);
-                    self.assembler.push_error(stamp, kind, format!("{} at stamp {stamp}: {e}", m.topic()))
+                    let reason = format!("{} at stamp {stamp}: {e}", m.topic());
+                    self.assembler.push_error(stamp, kind, reason, self.now)
                 }
             };
             self.ready.extend(done);
@@ -180,7 +165,7 @@ impl FrameStream {
                     "still incomplete when more than {} frames were waiting (limits.max_pending_frames)",
                     self.limits.max_pending_frames
                 );
-                self.ready.extend(self.assembler.take_oldest(reason));
+                self.ready.extend(self.assembler.take_oldest(reason, self.now));
             }
         }
         Ok(self.ready.pop_front().map(|a| limit_frame(a, &self.limits, &mut self.limit_counts)))

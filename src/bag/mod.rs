@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use crate::frame::Frame;
 use crate::frame::{Assembled, FramePart, IncompleteFrame, MapCloud, PartKind};
 use crate::limits::InputLimits;
-use crate::msgs::{self, convert, from_cdr, MsgError};
+use crate::msgs::{convert, from_cdr, MsgError};
 
 /// Why a bag could not be read or written; every variant names the file.
 #[derive(Debug, thiserror::Error)]
@@ -100,50 +100,17 @@ pub fn decode_part(kind: PartKind, data: &[u8]) -> Result<FramePart, MsgError> {
     decode_part_limited(kind, data, &InputLimits::default())
 }
 
-fn check_side(what: &'static str, width: u32, height: u32, limits: &InputLimits) -> Result<(), MsgError> {
-    crate::limits::check_image_side(what, width, height, limits).map_err(|reason| MsgError::Invalid { what, reason })
-}
-
 /// Decodes one frame input message into its part; a CameraInfo or depth image larger than
-/// `limits.max_image_side` is refused.
+/// `limits.max_image_side` is refused (the conversions are [`convert`]'s, shared with the node).
 pub fn decode_part_limited(kind: PartKind, data: &[u8], limits: &InputLimits) -> Result<FramePart, MsgError> {
-    Ok(match kind {
-        PartKind::CameraInfo => {
-            let m: msgs::CameraInfo = from_cdr(data)?;
-            check_side("CameraInfo", m.width, m.height, limits)?;
-            FramePart::CameraInfo {
-                stamp: convert::stamp(&m.header),
-                intrinsics: convert::intrinsics_from_camera_info(&m)?,
-            }
-        }
-        PartKind::Correspondences => {
-            let m: msgs::Correspondences = from_cdr(data)?;
-            FramePart::Correspondences {
-                stamp: convert::stamp(&m.header),
-                correspondences: convert::correspondences_from_msg(&m)?,
-                camera_frame_id: m.header.frame_id,
-                map_frame_id: m.map_frame_id,
-            }
-        }
-        PartKind::DepthPrior => {
-            let m: msgs::Image = from_cdr(data)?;
-            check_side("depth prior", m.width, m.height, limits)?;
-            FramePart::DepthPrior { stamp: convert::stamp(&m.header), depth: convert::depth_from_image(&m)? }
-        }
-        PartKind::Image => {
-            let m: msgs::CompressedImage = from_cdr(data)?;
-            FramePart::Image { stamp: convert::stamp(&m.header), image: convert::encoded_image(&m) }
-        }
-        PartKind::GroundTruthPose => {
-            let m: msgs::PoseStamped = from_cdr(data)?;
-            FramePart::GroundTruthPose { stamp: convert::stamp(&m.header), pose: convert::isometry_from_pose(&m.pose)? }
-        }
-        PartKind::GroundTruthDepth => {
-            let m: msgs::Image = from_cdr(data)?;
-            check_side("ground-truth depth", m.width, m.height, limits)?;
-            FramePart::GroundTruthDepth { stamp: convert::stamp(&m.header), depth: convert::depth_from_image(&m)? }
-        }
-    })
+    match kind {
+        PartKind::CameraInfo => convert::camera_info_part(&from_cdr(data)?, limits),
+        PartKind::Correspondences => convert::correspondences_part(from_cdr(data)?),
+        PartKind::DepthPrior => convert::depth_prior_part(&from_cdr(data)?, limits),
+        PartKind::Image => Ok(convert::compressed_image_part(&from_cdr(data)?)),
+        PartKind::GroundTruthPose => convert::ground_truth_pose_part(&from_cdr(data)?),
+        PartKind::GroundTruthDepth => convert::ground_truth_depth_part(&from_cdr(data)?, limits),
+    }
 }
 
 /// Reads the map and all frames of a bag, joining topics by `header.stamp`, with the default
@@ -187,6 +154,7 @@ pub fn write_input_bag(
     map: &MapCloud,
     frames: &[Frame],
 ) -> Result<(), BagError> {
+    let dir = dir.as_ref();
     let mut w = BagWriter::create(dir)?;
     let first = frames.iter().map(|f| f.stamp).min().unwrap_or(100_000_000);
     let map_stamp = first.saturating_sub(100_000_000).max(0);
@@ -198,7 +166,9 @@ pub fn write_input_bag(
         let (t, cam) = (f.stamp, f.camera_frame_id.as_str());
         w.write(&topics.camera_info, t, &convert::camera_info(t, cam, &f.intrinsics))?;
         if let Some(image) = &f.image {
-            w.write(&topics.image, t, &convert::compressed_image(t, cam, image))?;
+            let msg = convert::compressed_image_msg(t, cam, image)
+                .map_err(|e| BagError::Write { path: dir.to_path_buf(), reason: e.to_string() })?;
+            w.write(&topics.image, t, &msg)?;
         }
         if let Some(prior) = &f.depth_prior {
             w.write(&topics.depth_prior, t, &convert::image_32fc1(t, cam, prior))?;
@@ -221,7 +191,8 @@ pub fn write_input_bag(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::{Correspondence, EncodedImage, GroundTruth, Stamp};
+    use crate::msgs;
+    use crate::frame::{CameraImage, Correspondence, EncodedImage, GroundTruth, Stamp};
     use crate::geometry::{DepthImage, Intrinsics};
     use nalgebra::{Isometry3, Point2, Point3, Vector3};
 
@@ -237,7 +208,10 @@ mod tests {
                 score: 0.75,
             }],
             depth_prior: with_prior.then(|| DepthImage::new(2, 1, vec![1.5, 2.5])),
-            image: Some(EncodedImage { format: "jpeg".into(), data: vec![0xff, 0xd8, 0xff, 0xd9] }),
+            image: Some(CameraImage::Compressed(EncodedImage {
+                format: "jpeg".into(),
+                data: vec![0xff, 0xd8, 0xff, 0xd9],
+            })),
             ground_truth: Some(GroundTruth {
                 pose: Some(Isometry3::new(Vector3::new(1.0, 2.0, 3.0), Vector3::new(0.0, 0.5, 0.0))),
                 depth: Some(DepthImage::new(4, 2, vec![1.0, 0.0, 2.5, 0.5, 0.0, 0.0, 0.0, 1.234])),
@@ -264,7 +238,9 @@ mod tests {
         assert_eq!(a.intrinsics, b.intrinsics);
         assert_eq!(a.correspondences, b.correspondences);
         assert_eq!(a.depth_prior, b.depth_prior);
-        assert_eq!(a.image.as_ref().unwrap().data, b.image.as_ref().unwrap().data);
+        let compressed = |f: &Frame| f.image.as_ref().and_then(CameraImage::compressed).map(|i| i.data.clone());
+        assert_eq!(compressed(a), compressed(b));
+        assert!(compressed(a).is_some());
         let (ga, gb) = (a.ground_truth.as_ref().unwrap(), b.ground_truth.as_ref().unwrap());
         assert!((ga.pose.unwrap().to_homogeneous() - gb.pose.unwrap().to_homogeneous()).norm() < 1e-12);
         assert_eq!(ga.depth, gb.depth);

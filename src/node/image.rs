@@ -2,18 +2,15 @@
 //! or `sensor_msgs/CompressedImage` (JPEG/PNG), converted in the reader threads to RGB, and the
 //! debug image (kept correspondences green, rejected red) drawn on it.
 //!
-//! A converted image travels in the frame as an [`EncodedImage`] whose format is
-//! `angle_i2p/rgb8 WxH` and whose data are the packed RGB rows, so the worker never decodes.
+//! A converted image travels in the frame as a [`CameraImage::Raw`], so the worker never
+//! decodes.
 
 use std::collections::HashSet;
 
 use image::{Rgb, RgbImage};
 
-use crate::frame::{Correspondence, EncodedImage, Stamp};
+use crate::frame::{CameraImage, Correspondence, Stamp};
 use crate::msgs::{CompressedImage, Header, Image};
-
-/// Format prefix of an already decoded, packed RGB image in an [`EncodedImage`].
-pub const RAW_RGB8: &str = "angle_i2p/rgb8";
 
 /// Kept correspondences are drawn in this colour …
 pub const KEPT: [u8; 3] = [0, 255, 0];
@@ -62,6 +59,18 @@ pub fn rgb_from_image(msg: &Image) -> Result<RgbImage, String> {
     RgbImage::from_raw(msg.width, msg.height, out).ok_or_else(|| "image buffer size mismatch".to_string())
 }
 
+/// Like [`rgb_from_image`], refusing an image wider or taller than `max_side` before any
+/// pixel is copied.
+pub fn rgb_from_image_within(msg: &Image, max_side: u32) -> Result<RgbImage, String> {
+    if msg.width > max_side || msg.height > max_side {
+        return Err(format!(
+            "image of {}x{} exceeds limits.max_image_side = {max_side} (refused)",
+            msg.width, msg.height
+        ));
+    }
+    rgb_from_image(msg)
+}
+
 /// A `sensor_msgs/CompressedImage` (JPEG, PNG) → RGB.
 pub fn rgb_from_compressed(msg: &CompressedImage) -> Result<RgbImage, String> {
     rgb_from_compressed_within(msg, crate::limits::InputLimits::default().max_image_side)
@@ -81,23 +90,14 @@ pub fn rgb_from_compressed_within(msg: &CompressedImage, max_side: u32) -> Resul
     reader.decode().map(|img| img.to_rgb8()).map_err(|e| format!("{} (limits.max_image_side = {max_side})", fail(e)))
 }
 
-/// Packs a decoded image for the frame.
-pub fn to_encoded(img: RgbImage) -> EncodedImage {
-    EncodedImage { format: format!("{RAW_RGB8} {}x{}", img.width(), img.height()), data: img.into_raw() }
-}
-
-/// The RGB image of a frame's [`EncodedImage`]: packed (see [`to_encoded`]) or compressed.
-pub fn from_encoded(enc: &EncodedImage) -> Result<RgbImage, String> {
-    if let Some(dims) = enc.format.strip_prefix(RAW_RGB8) {
-        let (w, h) = dims.trim().split_once('x').ok_or_else(|| format!("bad packed image format {:?}", enc.format))?;
-        let (w, h): (u32, u32) = match (w.parse(), h.parse()) {
-            (Ok(w), Ok(h)) => (w, h),
-            _ => return Err(format!("bad packed image format {:?}", enc.format)),
-        };
-        return RgbImage::from_raw(w, h, enc.data.clone())
-            .ok_or_else(|| format!("packed {w}×{h} image with {} bytes", enc.data.len()));
+/// The RGB image of a frame's [`CameraImage`]: decoded already, or compressed (decoded here).
+pub fn from_encoded(image: &CameraImage) -> Result<RgbImage, String> {
+    match image {
+        CameraImage::Raw(rgb) => Ok(rgb.clone()),
+        CameraImage::Compressed(enc) => image::load_from_memory(&enc.data)
+            .map(|img| img.to_rgb8())
+            .map_err(|e| format!("cannot decode the {:?} image: {e}", enc.format)),
     }
-    image::load_from_memory(&enc.data).map(|img| img.to_rgb8()).map_err(|e| format!("cannot decode the image: {e}"))
 }
 
 /// Draws every correspondence of `all` as a filled 5×5 square: green when it is in `kept`
@@ -202,24 +202,26 @@ mod tests {
     }
 
     #[test]
-    fn packed_and_compressed_images_round_trip() {
+    fn raw_and_compressed_images_round_trip() {
         let mut img = RgbImage::from_pixel(3, 2, Rgb([1, 2, 3]));
         img.put_pixel(2, 1, Rgb([200, 100, 50]));
-        let back = from_encoded(&to_encoded(img.clone())).unwrap();
-        assert_eq!(back, img);
+        assert_eq!(from_encoded(&CameraImage::Raw(img.clone())).unwrap(), img);
         let mut png = Vec::new();
         image::DynamicImage::ImageRgb8(img.clone())
             .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
             .unwrap();
         let msg = CompressedImage { header: Header::new(1, "cam"), format: "png".into(), data: png.clone() };
         assert_eq!(rgb_from_compressed(&msg).unwrap(), img);
-        assert_eq!(from_encoded(&EncodedImage { format: "png".into(), data: png }).unwrap(), img);
+        let compressed = crate::frame::EncodedImage { format: "png".into(), data: png };
+        assert_eq!(from_encoded(&CameraImage::Compressed(compressed)).unwrap(), img);
         let junk = CompressedImage { header: Header::new(1, "cam"), format: "jpeg".into(), data: vec![1, 2, 3] };
         assert!(rgb_from_compressed(&junk).is_err());
         let wide = rgb_from_compressed_within(&msg, 1).unwrap_err();
         assert!(wide.contains("max_image_side"), "{wide}");
-        assert!(from_encoded(&EncodedImage { format: format!("{RAW_RGB8} 9x9"), data: vec![0; 3] }).is_err());
-        assert!(from_encoded(&EncodedImage { format: format!("{RAW_RGB8} nope"), data: vec![] }).is_err());
+        let junk = crate::frame::EncodedImage { format: "jpeg".into(), data: vec![1, 2, 3] };
+        assert!(from_encoded(&CameraImage::Compressed(junk)).unwrap_err().contains("jpeg"));
+        let huge = raw("rgb8", 10_000, 10_000, 30_000, vec![0; 3]);
+        assert!(rgb_from_image_within(&huge, 4096).unwrap_err().contains("max_image_side"));
         let m = image_msg(4, "cam", img);
         assert_eq!((m.width, m.height, m.step, m.encoding.as_str(), m.data.len()), (3, 2, 9, "rgb8", 18));
     }

@@ -1,33 +1,41 @@
 //! The live ROS 2 node over DDS (ros2-client on RustDDS; no ROS installation needed).
 //!
 //! ```text
-//!  DDS readers ──(one task per topic: decode + convert)──► ingest task ──► DropOldestQueue ──► worker
-//!                                                           FrameAssembler    (queue_depth)     Localizer::process
-//!                                                           time-outs, map                      (blocking pool)
-//!                                                                                               └► pose, pose+cov,
-//!  diagnostics task (every diagnostics_period_ms) ◄── Stats ◄────────────────────────────────────┘  kept matches, /tf
+//!  readers ──(one thread per topic: decode + convert::*_part)──► ingest ──► DropOldestQueue ──► worker
+//!                                                                FrameAssembler  (queue_depth)   Localizer::process
+//!                                                                (sans-io: time-                 (blocking pool)
+//!                                                                outs, late parts), map          └► outputs: pose,
+//!  diagnostics (every diagnostics_period_ms) ◄── Stats ◄──────────────────────────────────────────┘  pose+cov, kept, /tf
 //! ```
 //!
-//! Nothing heavy runs in the DDS receive path: readers only decode and convert, the
-//! localizer runs on tokio's blocking pool, one frame at a time. Bad input (undecodable
-//! messages, non-finite correspondences, unsupported depth encodings, frames with missing
-//! parts, frames before any map) is counted by reason in `/diagnostics` and logged; the node
-//! keeps going. Topics are the [`crate::bag::TopicMap`]'s, resolved with `--ros-args` remaps.
+//! `run` does the node's life in named steps (parameters, publishers, subscriptions, loop,
+//! shutdown); `readers`, `ingest`, `worker` and `outputs` are the rooms it wires. Nothing heavy
+//! runs in the DDS receive path: readers only decode and convert (with the conversions bag
+//! replay uses), the localizer runs on tokio's blocking pool, one frame at a time. Bad input
+//! (undecodable messages, non-finite correspondences, unsupported depth encodings, frames with
+//! missing parts, late parts, repeated stamps, frames before any map) is counted by reason in
+//! `/diagnostics` and logged; the node keeps going. Topics are the [`crate::bag::TopicMap`]'s,
+//! resolved with `--ros-args` remaps.
 
 pub mod dds;
 pub mod diagnostics;
 pub mod health;
 pub mod image;
+mod ingest;
 pub mod initial_pose;
 pub mod install;
+mod log;
 pub mod map_file;
+mod outputs;
 pub mod qos_watch;
 pub mod queue;
+mod readers;
 mod run;
 pub mod services;
 pub mod tf;
 pub mod tf_buffer;
 mod topics;
+mod worker;
 
 pub use crate::params::{ArgsError, LogLevel, MapQos, Names, NodeParams, RosArgs};
 pub use diagnostics::{status_name, status_value, Stats, LOCALIZATION_TASK};
@@ -65,7 +73,7 @@ pub fn run(config: NodeConfig) -> anyhow::Result<()> {
         }
     }
     if let Some(level) = args.log_level {
-        run::set_log_level(level);
+        log::set_log_level(level);
     }
     if let Some(enclave) = &args.enclave {
         eprintln!("[angle_i2p] WARN enclave {enclave:?} accepted but not applied: DDS security is not built in");

@@ -20,7 +20,7 @@ use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;
 
-use crate::frame::{EncodedImage, Frame, GroundTruth, MapCloud, Stamp};
+use crate::frame::{CameraImage, EncodedImage, Frame, GroundTruth, MapCloud, Stamp};
 use crate::geometry::{DepthImage, Intrinsics, PointIndex};
 use crate::rng::mix64;
 
@@ -304,7 +304,7 @@ impl FrameContext<'_> {
             kind: c.prior_kind,
         };
         let prior = depth_prior(&render.depth, &params, &mut rng);
-        let image = encode_jpeg(&render.rgb, c.width, c.height, c.jpeg_quality);
+        let image = encode_jpeg(&render.rgb, c.width, c.height, c.jpeg_quality).map(CameraImage::Compressed);
 
         let mut depths: Vec<f64> =
             render.depth.data.iter().filter(|d| d.is_finite() && **d > 0.0).map(|&d| d as f64).collect();

@@ -1,7 +1,18 @@
 //! Conversions between ROS messages and the core types, and builders for output messages.
 //!
 //! Decoding direction (`*_from_*` / `to_*`) validates and returns [`MsgError`] on bad data;
-//! building direction never fails.
+//! building direction never fails. [`parts`] turns each input message into its frame part and
+//! [`localization`] a result into its output messages: both edges (bag replay and the live
+//! node) go through them.
+
+mod localization;
+mod parts;
+
+pub use localization::{localization_messages, LocalizationMessages};
+pub use parts::{
+    camera_info_part, compressed_image_msg, compressed_image_part, correspondences_part, depth_prior_part,
+    ground_truth_depth_part, ground_truth_pose_part, map_part, DecodedMap,
+};
 
 use nalgebra::{Isometry3, Matrix6, Point2, Point3, Quaternion as NQuaternion, Translation3, UnitQuaternion};
 

@@ -1,0 +1,250 @@
+//! The node's subscriptions: one reader thread per topic that decodes each message and
+//! converts it with the conversions bag replay uses ([`convert`]'s `*_part`), then hands it
+//! to the ingest task; image-source arbitration; the map, TF and `/initialpose` readers and
+//! the node's services.
+
+use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+
+use anyhow::{Context as _, Result};
+use futures::StreamExt;
+use ros2_client::{Node, Subscription};
+use tokio::sync::mpsc;
+
+use crate::params::{MapQos, Names, NodeParams};
+use super::dds;
+use super::image as img;
+use super::ingest::Input;
+use super::initial_pose::{GateWidth, PoseGate};
+use super::log::{info, lock};
+use super::services;
+use super::tf::TfBuffer;
+use super::topics::Topics;
+use crate::frame::{CameraImage, FramePart, PartKind, Stamp};
+use crate::limits::InputLimits;
+use crate::msgs::{self, convert, RosMessage};
+
+/// Spawns a reader thread that drains `sub`, converting each message with `convert` (`None`:
+/// nothing for the ingest task). (ros2-client's sample streams are not `Send`, so each reader
+/// gets its own small thread; it only decodes and converts, and ends when the ingest side is
+/// gone.)
+fn spawn_reader<M, F>(
+    sub: Subscription<M>,
+    topic: String,
+    tx: mpsc::Sender<Input>,
+    convert: F,
+) -> Result<JoinHandle<()>>
+where
+    M: RosMessage + Send + 'static,
+    F: Fn(M) -> Option<Input> + Send + 'static,
+{
+    std::thread::Builder::new()
+        .name(format!("reader {topic}"))
+        .spawn(move || {
+            futures::executor::block_on(async move {
+                let stream = sub.async_stream();
+                futures::pin_mut!(stream);
+                while let Some(r) = stream.next().await {
+                    let input = match r {
+                        Ok((msg, _info)) => convert(msg),
+                        Err(e) => Some(Input::ReadError { topic: topic.clone(), reason: format!("{e:?}") }),
+                    };
+                    let Some(input) = input else { continue };
+                    if tx.send(input).await.is_err() {
+                        break;
+                    }
+                }
+            })
+        })
+        .with_context(|| "spawning a reader thread".to_string())
+}
+
+/// A converted part, or the reason it did not convert, for the frame at `stamp`.
+fn part_or_error<E: std::fmt::Display>(kind: PartKind, stamp: Stamp, r: Result<FramePart, E>) -> Option<Input> {
+    Some(match r {
+        Ok(p) => Input::Part(p),
+        Err(e) => Input::PartError { kind, stamp, reason: e.to_string() },
+    })
+}
+
+/// Subscribes `topic` and spawns its reader; `readers` collects the threads.
+fn read<M, F>(readers: &mut Readers, topic: &str, qos: &ros2_client::QosProfile, convert: F) -> Result<()>
+where
+    M: RosMessage + Send + 'static,
+    F: Fn(M) -> Option<Input> + Send + 'static,
+{
+    let sub = dds::subscription::<M>(readers.node, topic, qos)?;
+    readers.threads.push(spawn_reader(sub, topic.to_string(), readers.tx.clone(), convert)?);
+    Ok(())
+}
+
+/// What the subscriptions are made on and handed to.
+pub struct Readers<'a> {
+    pub node: &'a mut Node,
+    pub tx: mpsc::Sender<Input>,
+    pub threads: Vec<JoinHandle<()>>,
+}
+
+/// The frame inputs: camera info, correspondences, the depth prior when `wants_prior`.
+pub fn subscribe_frame_parts(r: &mut Readers, topics: &Topics, limits: &InputLimits, wants_prior: bool) -> Result<()> {
+    let sensor = dds::sensor_data(10);
+    let l = limits.clone();
+    read(r, &topics.camera_info, &sensor, move |m: msgs::CameraInfo| {
+        let stamp = convert::stamp(&m.header);
+        part_or_error(PartKind::CameraInfo, stamp, convert::camera_info_part(&m, &l))
+    })?;
+    // Best effort: matches reliable and best-effort matchers alike.
+    read(r, &topics.correspondences, &sensor, |m: msgs::Correspondences| {
+        let stamp = convert::stamp(&m.header);
+        part_or_error(PartKind::Correspondences, stamp, convert::correspondences_part(m))
+    })?;
+    if wants_prior {
+        let l = limits.clone();
+        read(r, &topics.depth_prior, &sensor, move |m: msgs::Image| {
+            let stamp = convert::stamp(&m.header);
+            part_or_error(PartKind::DepthPrior, stamp, convert::depth_prior_part(&m, &l))
+        })?;
+    }
+    Ok(())
+}
+
+/// Which image topic feeds the frames: the first that delivers wins, the other is then
+/// ignored (cameras often publish both raw and compressed; one image per frame is enough).
+#[derive(Clone, Default)]
+struct ImageSource(Arc<AtomicU8>);
+
+impl ImageSource {
+    const COMPRESSED: u8 = 1;
+    const RAW: u8 = 2;
+
+    /// True when images of `source` are used (claiming the slot if it is free).
+    fn accept(&self, source: u8, topic: &str) -> bool {
+        match self.0.compare_exchange(0, source, Ordering::AcqRel, Ordering::Acquire) {
+            Ok(_) => {
+                info(format!("camera images from {topic}"));
+                true
+            }
+            Err(current) => current == source,
+        }
+    }
+}
+
+/// A camera image message → the frame's image part, decoded to RGB here in the reader (the
+/// worker never decodes).
+fn image_part(
+    source: &ImageSource,
+    which: u8,
+    topic: &str,
+    header: &msgs::Header,
+    rgb: impl FnOnce() -> Result<image::RgbImage, String>,
+) -> Option<Input> {
+    if !source.accept(which, topic) {
+        return None;
+    }
+    let stamp = convert::stamp(header);
+    part_or_error(PartKind::Image, stamp, rgb().map(|rgb| FramePart::Image { stamp, image: CameraImage::Raw(rgb) }))
+}
+
+/// The camera images (`debug_image`): compressed and raw, whichever delivers first.
+pub fn subscribe_images(r: &mut Readers, topics: &Topics, limits: &InputLimits) -> Result<()> {
+    let sensor = dds::sensor_data(10);
+    let source = ImageSource::default();
+    let (src, topic, side) = (source.clone(), topics.image.clone(), limits.max_image_side);
+    read(r, &topics.image, &sensor, move |m: msgs::CompressedImage| {
+        let rgb = || img::rgb_from_compressed_within(&m, side);
+        image_part(&src, ImageSource::COMPRESSED, &topic, &m.header, rgb)
+    })?;
+    let (src, topic) = (source, topics.image_raw.clone());
+    read(r, &topics.image_raw, &sensor, move |m: msgs::Image| {
+        let rgb = || img::rgb_from_image_within(&m, side);
+        image_part(&src, ImageSource::RAW, &topic, &m.header, rgb)
+    })
+}
+
+/// The map subscription(s) of `map_qos`: reliable, keep last 1.
+fn map_qos_profiles(map_qos: MapQos) -> Vec<ros2_client::QosProfile> {
+    match map_qos {
+        MapQos::Auto => vec![dds::latched(), dds::reliable(1)],
+        MapQos::TransientLocal => vec![dds::latched()],
+        MapQos::Volatile => vec![dds::reliable(1)],
+    }
+}
+
+/// The map, cleaned and within `limits.max_map_points` (as bag replay takes it).
+pub fn subscribe_map(r: &mut Readers, topics: &Topics, map_qos: MapQos, limits: &InputLimits) -> Result<()> {
+    for qos in map_qos_profiles(map_qos) {
+        let limits = limits.clone();
+        read(r, &topics.map, &qos, move |m: msgs::PointCloud2| {
+            Some(Input::Map(convert::map_part(&m, &limits).map_err(|e| e.to_string())))
+        })?;
+    }
+    Ok(())
+}
+
+/// `/tf` and `/tf_static` into `buffer` (for `map → odom`); bad transforms are counted.
+pub fn subscribe_tf(r: &mut Readers, topics: &Topics, buffer: &Arc<Mutex<TfBuffer>>) -> Result<()> {
+    for (topic, qos) in [(&topics.tf, dds::reliable(100)), (&topics.tf_static, dds::latched())] {
+        let buffer = buffer.clone();
+        read(r, topic, &qos, move |m: msgs::TFMessage| {
+            let bad = lock(&buffer).update(&m);
+            (!bad.is_empty()).then(|| Input::Invalid { reason: "invalid_transform", detail: bad.join("; ") })
+        })?;
+    }
+    Ok(())
+}
+
+/// `initialpose`: sets the gate that poses must fall in (nav2 amcl's topic).
+pub fn subscribe_initial_pose(
+    r: &mut Readers,
+    topics: &Topics,
+    np: &NodeParams,
+    gate: &Arc<Mutex<Option<PoseGate>>>,
+) -> Result<()> {
+    let width = GateWidth {
+        sigmas: np.initialpose_gate_sigmas,
+        min_radius_m: np.initialpose_min_radius_m,
+        min_angle_deg: np.initialpose_min_angle_deg,
+    };
+    let gate = gate.clone();
+    read(
+        r,
+        &topics.initial_pose,
+        &dds::reliable(10),
+        move |m: msgs::PoseWithCovarianceStamped| match PoseGate::from_msg(&m, None, width) {
+            Ok(g) => {
+                info(format!("initial pose: gate {:.2} m / {:.1}°", g.radius_m, g.max_angle_rad.to_degrees()));
+                *lock(&gate) = Some(g);
+                None
+            }
+            Err(e) => Some(Input::Invalid { reason: "invalid_initialpose", detail: e.to_string() }),
+        },
+    )
+}
+
+/// `~/load_map` (reloads `map_path`) and `~/relocalize` (drops the initial-pose gate).
+pub fn spawn_services(
+    r: &mut Readers,
+    names: &Names,
+    np: &NodeParams,
+    gate: &Arc<Mutex<Option<PoseGate>>>,
+) -> Result<()> {
+    let (load_map_tx, map_path, map_frame_id) = (r.tx.clone(), np.map_path.clone(), np.map_frame_id.clone());
+    let load_map = move || {
+        let (response, map) = services::load_map_answer(&map_path, &map_frame_id);
+        if let Some(map) = map {
+            // The node is shutting down when the ingest side is gone.
+            let _ = load_map_tx.blocking_send(Input::Map(Ok(convert::DecodedMap { map, notes: Vec::new() })));
+        }
+        response
+    };
+    r.threads.push(services::spawn_trigger(r.node, &names.resolve("~/load_map"), load_map, info)?);
+    let gate = gate.clone();
+    let relocalize = move || {
+        let had = lock(&gate).take().is_some();
+        let message = if had { "initial pose dropped: localizing globally" } else { "no initial pose was set" };
+        services::TriggerResponse { success: true, message: message.into() }
+    };
+    r.threads.push(services::spawn_trigger(r.node, &names.resolve("~/relocalize"), relocalize, info)?);
+    Ok(())
+}

@@ -1,0 +1,130 @@
+//! The worker: takes frames from the queue, runs the localizer on tokio's blocking pool (one
+//! frame at a time; a panic becomes a counted failure and a fresh localizer), applies the
+//! `/initialpose` gate and publishes.
+
+use std::sync::{Arc, Mutex};
+
+use super::diagnostics::Stats;
+use super::ingest::Job;
+use super::initial_pose::PoseGate;
+use super::log::{lock, warn};
+use super::outputs::Outputs;
+use super::queue::DropOldestQueue;
+use crate::frame::{Frame, MapCloud, Stamp};
+use crate::pipeline::{Localization, Localizer, LocalizerParams, SetupError};
+
+/// Why a frame got no localization at all (not even a failure value).
+#[derive(Debug, thiserror::Error)]
+pub enum LocalizeError {
+    #[error("frame {stamp}: the localizer panicked")]
+    Panicked { stamp: Stamp },
+    #[error("frame {stamp}: the localizer's task ended abnormally: {reason}")]
+    TaskFailed { stamp: Stamp, reason: String },
+}
+
+/// A localized frame with the localizer that did it (handed back for the next frame).
+struct Localized {
+    localizer: Localizer,
+    frame: Frame,
+    localization: Localization,
+}
+
+/// Runs `localizer` on `frame` on the blocking pool. On an error the localizer is lost: the
+/// caller starts a fresh one.
+async fn localize(localizer: Localizer, frame: Frame) -> Result<Localized, LocalizeError> {
+    let stamp = frame.stamp;
+    let handle = tokio::task::spawn_blocking(move || {
+        let mut localizer = localizer;
+        let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| localizer.process(&frame)));
+        out.map(|localization| Localized { localizer, frame, localization })
+    });
+    match handle.await {
+        Ok(Ok(done)) => Ok(done),
+        Ok(Err(_panic)) => Err(LocalizeError::Panicked { stamp }),
+        Err(join) => Err(LocalizeError::TaskFailed { stamp, reason: join.to_string() }),
+    }
+}
+
+/// A localizer with `params`, on `map` when one was set.
+fn fresh_localizer(params: &LocalizerParams, map: Option<&MapCloud>) -> Result<Localizer, SetupError> {
+    let mut localizer = Localizer::new(params.clone())?;
+    if let Some(m) = map {
+        localizer.set_map(m);
+    }
+    Ok(localizer)
+}
+
+/// Localizes and publishes every queued frame until the queue is closed.
+pub async fn run(
+    queue: Arc<DropOldestQueue<Job>>,
+    localizer: Localizer,
+    outputs: Outputs,
+    gate: Arc<Mutex<Option<PoseGate>>>,
+) {
+    let params = localizer.params().clone();
+    let mut localizer = Some(localizer);
+    let mut map: Option<Arc<MapCloud>> = None;
+    while let Some(job) = queue.pop().await {
+        let mut current = match localizer.take().map_or_else(|| fresh_localizer(&params, map.as_deref()), Ok) {
+            Ok(current) => current,
+            Err(e) => {
+                // It was set up once with these parameters; count the frame and try again next time.
+                warn(format!("frame {}: no fresh localizer: {e}", job.frame.stamp));
+                let mut s = lock(&outputs.stats);
+                s.frames_failed += 1;
+                s.error("setup", e.to_string());
+                continue;
+            }
+        };
+        if let Some(new) = job.new_map {
+            current.set_map(&new);
+            map = Some(new);
+        }
+        let done = match localize(current, job.frame).await {
+            Ok(done) => done,
+            Err(e) => {
+                warn(format!("{e}; continuing with a fresh localizer"));
+                let mut s = lock(&outputs.stats);
+                s.frames_failed += 1;
+                s.error("panic", e.to_string());
+                continue;
+            }
+        };
+        let Localized { localizer: back, frame, localization: mut loc } = done;
+        localizer = Some(back);
+        apply_gate(&gate, &mut loc, &outputs.stats);
+        outputs.publish(&loc, &frame).await;
+        record_outcome(&outputs.stats, &loc, job.handed_out.elapsed().as_secs_f64() * 1e3);
+    }
+}
+
+/// Counts a localized (or failed) frame in the statistics.
+fn record_outcome(stats: &Mutex<Stats>, loc: &Localization, latency_ms: f64) {
+    let stamp = loc.stamp;
+    let mut s = lock(stats);
+    s.frame_done(stamp, loc.pose.is_some(), latency_ms, loc.timings.total_ms);
+    if loc.pose.is_some() {
+        s.frame_evidence(loc.prior_quality, loc.fast_path);
+    }
+    if let Some(f) = &loc.failure {
+        s.error(f.key(), format!("frame {stamp}: {f}"));
+        drop(s);
+        warn(format!("frame {stamp}: no pose: {f}"));
+    }
+}
+
+/// With an `/initialpose` gate set: a pose outside it is withdrawn (counted), one inside moves it.
+fn apply_gate(gate: &Mutex<Option<PoseGate>>, loc: &mut Localization, stats: &Mutex<Stats>) {
+    let mut guard = lock(gate);
+    let (Some(g), Some(pose)) = (guard.as_mut(), loc.pose) else { return };
+    match g.check(&pose) {
+        Ok(()) => g.follow(&pose),
+        Err(miss) => {
+            let detail = format!("frame {}: outside the initial pose gate: {miss}", loc.stamp);
+            warn(&detail);
+            lock(stats).error("outside_initialpose_gate", detail);
+            loc.pose = None;
+            loc.covariance = None;
+        }
+    }
+}
