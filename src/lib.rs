@@ -13,6 +13,7 @@ pub mod eval;
 pub mod frame;
 pub mod geometry;
 pub mod limits;
+pub mod map_index;
 pub mod msgs;
 pub mod node;
 pub mod npy;

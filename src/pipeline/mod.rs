@@ -150,13 +150,20 @@ impl Localizer {
         self.setup_error.as_deref()
     }
 
-    /// The map frames are localized against (rejectors that use its geometry keep it).
+    /// The map frames are localized against (indexed here; see [`Localizer::set_map_index`]).
     pub fn set_map(&mut self, map: &crate::frame::MapCloud) {
+        let settings = crate::map_index::IndexSettings { voxel_m: self.params.verify.render_voxel_m as f32 };
+        self.set_map_index(std::sync::Arc::new(crate::map_index::MapIndex::build(map.points.clone(), &settings)));
+    }
+
+    /// The map, already indexed (an index may be shared by several localizers, and built on
+    /// another thread): rejectors that use its geometry keep it, the verifier renders from it.
+    pub fn set_map_index(&mut self, index: std::sync::Arc<crate::map_index::MapIndex>) {
         if let Some(r) = self.rejector.as_mut() {
-            r.set_map(map);
+            r.set_map_index(&index);
         }
         self.render_map = if self.params.verify.enabled {
-            RenderMap::new(&map.points, self.params.verify.max_map_points)
+            crate::map_index::render_map(&index, &self.params.verify)
         } else {
             RenderMap::default()
         };

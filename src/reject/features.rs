@@ -56,9 +56,10 @@ pub fn map_normals(map: &IndexedMap, geometry: &FrameGeometry) -> Vec<Vector3<f6
     geometry
         .map_points
         .iter()
-        .map(|q| {
-            let Some(nearest) = map.index.nearest_one(&q.cast::<f32>()) else { return Vector3::zeros() };
-            let n: Vector3<f64> = map.normals[nearest].cast();
+        .zip(map.nearest_normals(&geometry.map_points))
+        .map(|(q, normal)| {
+            let Some(normal) = normal else { return Vector3::zeros() };
+            let n: Vector3<f64> = normal.cast();
             if n.dot(&(towards - q)) < 0.0 {
                 -n
             } else {

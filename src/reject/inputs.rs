@@ -3,30 +3,17 @@
 //! training — the ground-truth labels. The same code builds training samples (`angle-i2p
 //! export`) and inference inputs, so both sides see identical numbers.
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 
 use super::features::{features, map_normals, FEATURE_DIM, MAP_NORMAL_NEIGHBOURS};
 use super::graph::{build_graphs, Graphs};
 use super::network::{KeypointRanking, NetworkParams};
 use super::{FrameGeometry, Rejector, SpectralRejector};
-use crate::geometry::{point_cloud_normals, PointIndex};
 
-/// The map, indexed once, with the normal of every map point (PCA over its
-/// [`MAP_NORMAL_NEIGHBOURS`] nearest, sign left to each frame): a frame then needs one
-/// nearest-neighbour lookup per correspondence instead of a k-NN and an eigen-solve.
-pub struct IndexedMap {
-    pub points: Vec<Point3<f32>>,
-    pub index: PointIndex,
-    pub normals: Vec<Vector3<f32>>,
-}
-
-impl IndexedMap {
-    pub fn new(points: Vec<Point3<f32>>) -> Self {
-        let index = PointIndex::new(&points);
-        let normals = point_cloud_normals(&index, &points, MAP_NORMAL_NEIGHBOURS);
-        Self { points, index, normals }
-    }
-}
+/// The map, indexed once, with the normal of each map point a frame uses (PCA over its
+/// [`MAP_NORMAL_NEIGHBOURS`] nearest, sign left to each frame) computed on first use and cached.
+pub type IndexedMap = crate::map_index::MapIndex;
+const _: () = assert!(MAP_NORMAL_NEIGHBOURS == crate::map_index::NORMAL_NEIGHBOURS);
 
 /// One frame's network inputs.
 #[derive(Clone, Debug, Default)]

@@ -6,7 +6,7 @@
 //! `ORT_DYLIB_PATH`, else `.ort/libonnxruntime.so.1.31.1` (`make ort` puts it there).
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use ort::session::Session;
 use ort::value::Tensor;
@@ -16,7 +16,6 @@ use super::graph::{GraphParams, ThetaKind};
 use super::inputs::{build_inputs, IndexedMap, NetworkInputs};
 use super::{top_k, FrameGeometry, RejectError, Rejection, Rejector, SpectralParams, SpectralRejector};
 use crate::consistency::ScaleShiftParams;
-use crate::frame::MapCloud;
 
 /// The library file this build expects (the `api-31` feature).
 pub const ONNXRUNTIME_LIBRARY: &str = "libonnxruntime.so.1.31.1";
@@ -161,7 +160,7 @@ pub struct NetworkRejector {
     params: NetworkParams,
     session: Session,
     spectral: SpectralRejector,
-    map: Option<IndexedMap>,
+    map: Option<Arc<IndexedMap>>,
 }
 
 impl NetworkRejector {
@@ -183,7 +182,7 @@ impl NetworkRejector {
 
     /// The network's inputs for one frame (eq. 9 features, graphs, θ).
     pub fn inputs(&mut self, geometry: &FrameGeometry) -> NetworkInputs {
-        build_inputs(geometry, self.map.as_ref(), &mut self.spectral, &self.params)
+        build_inputs(geometry, self.map.as_deref(), &mut self.spectral, &self.params)
     }
 
     /// The network's scores for prepared inputs.
@@ -223,8 +222,8 @@ impl Rejector for NetworkRejector {
         "angle_i2p"
     }
 
-    fn set_map(&mut self, map: &MapCloud) {
-        self.map = Some(IndexedMap::new(map.points.clone()));
+    fn set_map_index(&mut self, index: &Arc<IndexedMap>) {
+        self.map = Some(Arc::clone(index));
     }
 
     fn reject(&mut self, geometry: &FrameGeometry) -> Result<Rejection, RejectError> {
