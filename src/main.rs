@@ -8,11 +8,10 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use angle_i2p::app::{self, describe};
-use angle_i2p::bag::write_input_bag;
 use angle_i2p::eval::{format_table, median};
 use angle_i2p::params::Params;
 use angle_i2p::pipeline::{Localizer, Method};
-use angle_i2p::synth::{generate, SynthConfig, PRESETS};
+use angle_i2p::synth::{SynthConfig, PRESETS};
 
 #[derive(Parser)]
 #[command(
@@ -113,7 +112,7 @@ enum Command {
         /// Replace a non-empty --out directory (everything in it is deleted).
         #[arg(long)]
         force: bool,
-        /// Tier: sift, hard or extreme.
+        /// Tier: sift, hard, extreme, easy or building (hard in a building), with +MODIFIERs.
         #[arg(long, default_value = "hard")]
         preset: String,
         /// JSON/YAML file with SynthConfig fields overriding the preset.
@@ -127,6 +126,9 @@ enum Command {
         inlier_ratio: Option<f64>,
         #[arg(long)]
         correspondences: Option<usize>,
+        /// About this many map points (the sampled map plus points on the same surfaces).
+        #[arg(long)]
+        map_points: Option<usize>,
     },
 }
 
@@ -353,10 +355,10 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Synth { out, preset, config, seed, frames, inlier_ratio, correspondences, force } => {
+        Command::Synth { out, preset, config, seed, frames, inlier_ratio, correspondences, map_points, force } => {
             app::check_synth_out(&out, force)?;
             let Some(mut cfg) = SynthConfig::preset(&preset) else {
-                bail!("unknown preset {preset:?}: one of {}", PRESETS.join(", "));
+                bail!("unknown preset {preset:?}: one of {}, building", PRESETS.join(", "));
             };
             if let Some(path) = config {
                 let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
@@ -383,18 +385,20 @@ fn run(cli: Cli) -> Result<()> {
             if let Some(n) = correspondences {
                 cfg.correspondences = n;
             }
-            let scene = generate(&cfg);
+            if let Some(n) = map_points {
+                cfg.map_points = n;
+            }
             if out.exists() {
                 std::fs::remove_dir_all(&out).with_context(|| format!("replacing {}", out.display()))?;
             }
-            write_input_bag(&out, &Params::default().topics, &scene.map, &scene.frames)?;
-            let irs: Vec<f64> = scene.stats.iter().map(|s| s.inlier_ratio).collect();
+            // Frames are made and written batch by batch: memory does not grow with --frames.
+            let written = angle_i2p::synth::write_bag(&out, &Params::default().topics, &cfg)?;
             println!(
                 "synth {preset} (seed {}): {} frames, {} map points, mean inlier ratio {:.3} → {}",
                 cfg.seed,
-                scene.frames.len(),
-                scene.map.points.len(),
-                angle_i2p::eval::mean(&irs).unwrap_or(0.0),
+                written.frames,
+                written.map_points,
+                written.mean_inlier_ratio,
                 out.display()
             );
             Ok(())

@@ -12,6 +12,9 @@ use parry3d::shape::Cuboid;
 use rand::rngs::StdRng;
 use rand::RngExt;
 
+mod building;
+pub use building::BuildingLayout;
+
 /// How a surface is textured in the camera image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Texture {
