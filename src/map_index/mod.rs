@@ -39,9 +39,16 @@ pub struct IndexSettings {
     pub voxel_m: f32,
 }
 
+impl IndexSettings {
+    /// The culling voxels the verification parameters ask for.
+    pub fn from_verify(params: &VerifyParams) -> Self {
+        Self { voxel_m: params.render_voxel_m as f32 }
+    }
+}
+
 impl Default for IndexSettings {
     fn default() -> Self {
-        Self { voxel_m: VerifyParams::default().render_voxel_m as f32 }
+        Self::from_verify(&VerifyParams::default())
     }
 }
 

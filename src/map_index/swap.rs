@@ -7,6 +7,39 @@ use std::sync::Arc;
 use super::{IndexSettings, MapIndex};
 use crate::frame::MapCloud;
 
+/// The worker's maps: the one frames are localized against, and a newer one being indexed.
+/// The first map is waited for (there is nothing to localize against before it); a later one is
+/// indexed on its own thread and swapped in between two frames when ready.
+#[derive(Default)]
+pub struct MapSwap {
+    current: Option<IndexedCloud>,
+    fresh: Option<IndexedCloud>,
+    building: BackgroundIndex,
+}
+
+impl MapSwap {
+    /// A new map arrived.
+    pub fn new_map(&mut self, map: Arc<MapCloud>, settings: IndexSettings) {
+        self.building.start(map, settings);
+        if self.current.is_none() {
+            self.fresh = self.building.wait();
+        }
+    }
+
+    /// The index to localize against from now on, when it changed (never blocks).
+    pub fn take_ready(&mut self) -> Option<Arc<MapIndex>> {
+        let done = self.fresh.take().or_else(|| self.building.ready())?;
+        let index = Arc::clone(&done.index);
+        self.current = Some(done);
+        Some(index)
+    }
+
+    /// The index frames are localized against.
+    pub fn current(&self) -> Option<Arc<MapIndex>> {
+        self.current.as_ref().map(|c| Arc::clone(&c.index))
+    }
+}
+
 /// A map being indexed, and the index once it is built.
 #[derive(Default)]
 pub struct BackgroundIndex {

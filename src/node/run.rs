@@ -488,11 +488,13 @@ async fn worker(
     outputs: Outputs,
     gate: Arc<Mutex<Option<PoseGate>>>,
 ) {
-    let mut map: Option<Arc<MapCloud>> = None;
+    let mut maps = crate::map_index::swap::MapSwap::default();
     while let Some(job) = queue.pop().await {
         if let Some(new) = job.new_map {
-            localizer.set_map(&new);
-            map = Some(new);
+            maps.new_map(new, crate::map_index::IndexSettings::from_verify(&localizer.params().verify));
+        }
+        if let Some(index) = maps.take_ready() {
+            localizer.set_map_index(index);
         }
         let stamp = job.frame.stamp;
         let (back, frame, loc) = localize(localizer, job.frame).await;
@@ -504,8 +506,8 @@ async fn worker(
             s.error("panic", format!("frame {stamp}: localizer panicked"));
             drop(s);
             localizer = Localizer::new(localizer.params().clone());
-            if let Some(m) = &map {
-                localizer.set_map(m);
+            if let Some(index) = maps.current() {
+                localizer.set_map_index(index);
             }
             continue;
         };

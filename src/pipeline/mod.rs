@@ -152,7 +152,7 @@ impl Localizer {
 
     /// The map frames are localized against (indexed here; see [`Localizer::set_map_index`]).
     pub fn set_map(&mut self, map: &crate::frame::MapCloud) {
-        let settings = crate::map_index::IndexSettings { voxel_m: self.params.verify.render_voxel_m as f32 };
+        let settings = crate::map_index::IndexSettings::from_verify(&self.params.verify);
         self.set_map_index(std::sync::Arc::new(crate::map_index::MapIndex::build(map.points.clone(), &settings)));
     }
 

@@ -197,3 +197,60 @@ pub fn write_bag(dir: &Path, topics: &TopicMap, config: &SynthConfig) -> Result<
         mean_inlier_ratio: if n == 0 { 0.0 } else { ratio_sum / n as f64 },
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map_index::MapIndex;
+    use crate::verify::VerifyParams;
+
+    fn building(frames: usize, map_points: usize) -> SynthRun {
+        let preset = SynthConfig::preset("building").expect("building preset");
+        SynthRun::new(&SynthConfig { frames, map_points, seed: 4, ..preset })
+    }
+
+    #[test]
+    fn the_route_stays_clear_of_every_solid() {
+        let run = building(400, 0);
+        assert!(run.scene.solids.len() > MANY_SOLIDS, "{} solids", run.scene.solids.len());
+        for k in 0..run.frame_count() {
+            let eye = Point3::from(run.path.pose(k).translation.vector);
+            let clearance = run.scene.distance_to_surfaces(&eye);
+            assert!(run.scene.is_free(&eye) && clearance > 0.25, "frame {k} at {eye}: {clearance} m from a surface");
+        }
+    }
+
+    #[test]
+    fn more_map_points_leave_the_frames_as_they_are() {
+        let (sparse, dense) = (building(2, 0), building(2, 300_000));
+        let n = dense.map().points.len();
+        assert!((270_000..330_000).contains(&n), "{n} points for 300 000");
+        assert_eq!(
+            &dense.map().points[..sparse.map().points.len()],
+            &sparse.map().points[..],
+            "the sparse map comes first"
+        );
+        let frames = |run: &SynthRun| run.frames(0..2).into_iter().map(|(f, _)| f.correspondences).collect::<Vec<_>>();
+        assert_eq!(frames(&sparse), frames(&dense));
+        // A building is wider than the render range: its verification culls.
+        let index = MapIndex::new(dense.map().points.clone());
+        assert!(index.extent_m() > VerifyParams::default().render_range_m, "{}", index.extent_m());
+    }
+
+    #[test]
+    fn the_culled_ray_cast_sees_what_the_full_one_sees() {
+        let run = building(12, 0);
+        let intrinsics = run.config.intrinsics();
+        for k in 0..run.frame_count() {
+            let pose = run.path.pose(k);
+            let origin = Point3::from(pose.translation.vector);
+            let in_view = run.scene.solids_in_view(&pose, &intrinsics);
+            for (u, v) in [(0.0, 0.0), (160.0, 120.0), (319.0, 239.0), (40.0, 200.0), (300.0, 10.0)] {
+                let d = pose.rotation
+                    * Vector3::new((u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, 1.0);
+                let (all, culled) = (run.scene.cast(&origin, &d), run.scene.cast_among(&origin, &d, &in_view));
+                assert_eq!(all.map(|h| h.toi), culled.map(|h| h.toi), "frame {k}, pixel ({u}, {v})");
+            }
+        }
+    }
+}
