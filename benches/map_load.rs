@@ -29,7 +29,7 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("map_load");
     group.sample_size(10).measurement_time(Duration::from_secs(10)).warm_up_time(Duration::from_millis(200));
     let verify = VerifyParams::default();
-    let settings = IndexSettings { voxel_m: verify.render_voxel_m as f32 };
+    let settings = IndexSettings::from_verify(&verify);
     for n in sizes() {
         let run = building(n);
         let points = run.map().points.clone();

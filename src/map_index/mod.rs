@@ -32,17 +32,26 @@ pub use voxels::{PointSlice, View, VoxelGrid};
 /// Neighbours of a map point that define its normal (the learned rejector's n^P).
 pub const NORMAL_NEIGHBOURS: usize = 16;
 
+/// On a map wider than the render range, a correspondence takes the normal of the nearest map
+/// point within this distance, or none (in open space, off every surface). Unbounded, the
+/// search for a point off the surfaces visits every map point around it: its cost would grow with
+/// the map's density.
+pub const NORMAL_SEARCH_RADIUS_M: f32 = 0.25;
+
 /// How the map is bucketed for culling.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IndexSettings {
     /// Side of a culling voxel, metres.
     pub voxel_m: f32,
+    /// A map wider than this (bounding-box diagonal) looks up normals within
+    /// [`NORMAL_SEARCH_RADIUS_M`] only.
+    pub bounded_search_above_m: f64,
 }
 
 impl IndexSettings {
     /// The culling voxels the verification parameters ask for.
     pub fn from_verify(params: &VerifyParams) -> Self {
-        Self { voxel_m: params.render_voxel_m as f32 }
+        Self { voxel_m: params.render_voxel_m as f32, bounded_search_above_m: params.render_range_m }
     }
 }
 
@@ -60,6 +69,8 @@ pub struct MapIndex {
     grid: VoxelGrid,
     /// Diagonal of the finite points' bounding box, metres (0 for fewer than two points).
     extent_m: f64,
+    /// How far a correspondence looks for its map point's normal (`None`: unbounded).
+    normal_search_m: Option<f32>,
 }
 
 impl MapIndex {
@@ -77,7 +88,8 @@ impl MapIndex {
             // A panicking grid build (it cannot, short of a bug) leaves an empty grid.
             (tree, grid.join().unwrap_or_default(), extent)
         });
-        Self { points, tree, normals: LazyNormals::default(), grid, extent_m }
+        let normal_search_m = (extent_m > settings.bounded_search_above_m).then_some(NORMAL_SEARCH_RADIUS_M);
+        Self { points, tree, normals: LazyNormals::default(), grid, extent_m, normal_search_m }
     }
 
     /// The map's points, in the order they were given.
@@ -108,9 +120,14 @@ impl MapIndex {
     }
 
     /// For each query, the normal (arbitrary sign, unit or zero when degenerate) of the map point
-    /// nearest to it; `None` for an empty map. Computed on first use and cached.
+    /// nearest to it (on a map wider than the render range, within [`NORMAL_SEARCH_RADIUS_M`]);
+    /// `None` for an empty map or nothing near. Computed on first use and cached.
     pub fn nearest_normals(&self, queries: &[Point3<f64>]) -> Vec<Option<Vector3<f32>>> {
-        let nearest: Vec<Option<usize>> = queries.iter().map(|q| self.nearest(&q.cast::<f32>())).collect();
+        let nearest_one = |q: &Point3<f64>| match self.normal_search_m {
+            None => self.nearest(&q.cast::<f32>()),
+            Some(radius) => self.tree.nearest_within(&q.cast::<f32>(), radius),
+        };
+        let nearest: Vec<Option<usize>> = queries.iter().map(nearest_one).collect();
         let which: Vec<usize> = nearest.iter().flatten().copied().collect();
         let mut normals = self.normals.get(&self.tree, &self.points, NORMAL_NEIGHBOURS, &which).into_iter();
         nearest.iter().map(|n| n.and_then(|_| normals.next())).collect()

@@ -59,7 +59,7 @@ fn sorted(mut v: Vec<Point3<f32>>) -> Vec<[u32; 3]> {
 #[test]
 fn culling_keeps_exactly_the_points_in_view_when_the_budget_allows() {
     let points = cloud(30_000);
-    let index = MapIndex::build(points.clone(), &IndexSettings { voxel_m: 1.5 });
+    let index = MapIndex::build(points.clone(), &IndexSettings { voxel_m: 1.5, ..IndexSettings::default() });
     let k = intrinsics();
     for (eye, yaw, range) in
         [([5.0, 15.0, 1.5], 0.0, 12.0), ([20.0, 25.0, 2.0], -1.2, 30.0), ([38.0, 2.0, 1.0], 2.5, 8.0)]
@@ -83,7 +83,7 @@ fn culling_keeps_exactly_the_points_in_view_when_the_budget_allows() {
 #[test]
 fn a_budget_thins_every_voxel_evenly() {
     let points = cloud(60_000);
-    let index = MapIndex::build(points, &IndexSettings { voxel_m: 2.0 });
+    let index = MapIndex::build(points, &IndexSettings { voxel_m: 2.0, ..IndexSettings::default() });
     let k = intrinsics();
     let pose = looking([5.0, 15.0, 1.5], 0.0);
     let view = View { pose: &pose, intrinsics: &k, range_m: 40.0, near_m: 0.05 };
@@ -115,6 +115,20 @@ fn lazy_normals_equal_the_eager_ones_bit_for_bit() {
     // Asked again: served from the cache, same values.
     assert_eq!(index.nearest_normals(&queries), lazy);
     assert!(MapIndex::new(Vec::new()).nearest_normals(&queries).iter().all(Option::is_none));
+}
+
+#[test]
+fn on_a_wide_map_normals_are_looked_up_near_the_surfaces_only() {
+    // The cloud is 50 m wide: wider than the render range, so the lookup is bounded.
+    let index = MapIndex::new(cloud(5_000));
+    assert!(index.extent_m() > VerifyParams::default().render_range_m);
+    let on_floor = Point3::new(20.0, 15.0, 0.0);
+    let floor_point = index.points()[index.nearest(&on_floor.cast()).unwrap()];
+    let near = floor_point.cast::<f64>() + Vector3::new(0.0, 0.0, 0.1);
+    let far_above = Point3::new(20.0, 15.0, 40.0);
+    let normals = index.nearest_normals(&[near, far_above]);
+    assert!(normals[0].is_some(), "a point 10 cm off the floor has its normal");
+    assert!(normals[1].is_none(), "a point 37 m above everything has none");
 }
 
 #[test]
