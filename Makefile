@@ -59,6 +59,12 @@ fuzz:
 bench:
 	$(CARGO) bench
 
+# Per-frame median and peak RSS against map size and bag length (synth --preset building bags);
+# SIZES, LENGTHS, FRAMES, REPEAT as in scripts/scaling.sh. Writes out/scaling/scaling.md.
+.PHONY: scaling
+scaling: build
+	BIN=$(or $(CARGO_TARGET_DIR),target)/release/angle-i2p ./scripts/scaling.sh
+
 # ONNX Runtime's shared library (PyPI wheel onnxruntime==1.31.1) into .ort/, for the learned rejector.
 ort:
 	./scripts/fetch_onnxruntime.sh

@@ -14,6 +14,7 @@ pub mod frame;
 pub use geometry::align;
 pub mod geometry;
 pub mod limits;
+pub mod map_index;
 pub mod msgs;
 pub mod node;
 pub mod npy;

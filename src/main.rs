@@ -8,11 +8,10 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use angle_i2p::app::{self, describe, BagEdge};
-use angle_i2p::bag::write_input_bag;
 use angle_i2p::eval::{format_table, median, Summary};
 use angle_i2p::params::{resolve_cli, AppParams, TopicMap};
 use angle_i2p::pipeline::{Localization, Localizer, Method};
-use angle_i2p::synth::{generate, SynthConfig, PRESETS};
+use angle_i2p::synth::{SynthConfig, PRESETS};
 
 #[derive(Parser)]
 #[command(
@@ -113,7 +112,7 @@ enum Command {
         /// Replace a non-empty --out directory (everything in it is deleted).
         #[arg(long)]
         force: bool,
-        /// Tier: sift, hard or extreme.
+        /// Tier: sift, hard, extreme, easy or building (hard in a building), with +MODIFIERs.
         #[arg(long, default_value = "hard")]
         preset: String,
         /// JSON/YAML file with SynthConfig fields overriding the preset.
@@ -127,6 +126,9 @@ enum Command {
         inlier_ratio: Option<f64>,
         #[arg(long)]
         correspondences: Option<usize>,
+        /// About this many map points (the sampled map plus points on the same surfaces).
+        #[arg(long)]
+        map_points: Option<usize>,
     },
 }
 
@@ -179,13 +181,16 @@ fn run(cli: Cli) -> Result<()> {
             let params = resolve_cli::<&str>(params_file.as_deref(), &[])?;
             evaluate(&bag, &est, json, &params, report.as_deref())
         }
-        Command::Synth { out, preset, config, seed, frames, inlier_ratio, correspondences, force } => {
+        Command::Synth { out, preset, config, seed, frames, inlier_ratio, correspondences, map_points, force } => {
             app::check_synth_out(&out, force)?;
             let mut cfg = synth_config(&preset, config.as_deref())?;
             cfg.seed = seed.unwrap_or(cfg.seed);
             cfg.frames = frames.unwrap_or(cfg.frames);
             cfg.inlier_ratio = inlier_ratio.unwrap_or(cfg.inlier_ratio);
             cfg.correspondences = correspondences.unwrap_or(cfg.correspondences);
+            if let Some(n) = map_points {
+                cfg.map_points = n;
+            }
             synth(&preset, &cfg, &out)
         }
     }
@@ -387,7 +392,7 @@ fn write_report(
 /// The preset `preset`, with the fields of the `--config` file over it.
 fn synth_config(preset: &str, config: Option<&Path>) -> Result<SynthConfig> {
     let Some(cfg) = SynthConfig::preset(preset) else {
-        bail!("unknown preset {preset:?}: one of {}", PRESETS.join(", "));
+        bail!("unknown preset {preset:?}: one of {}, building", PRESETS.join(", "));
     };
     let Some(path) = config else { return Ok(cfg) };
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
@@ -404,18 +409,17 @@ fn synth_config(preset: &str, config: Option<&Path>) -> Result<SynthConfig> {
 
 /// `synth`: the scene of `cfg` written as an input bag at `out` (replaced if there).
 fn synth(preset: &str, cfg: &SynthConfig, out: &Path) -> Result<()> {
-    let scene = generate(cfg);
     if out.exists() {
         std::fs::remove_dir_all(out).with_context(|| format!("replacing {}", out.display()))?;
     }
-    write_input_bag(out, &TopicMap::default(), &scene.map, &scene.frames)?;
-    let irs: Vec<f64> = scene.stats.iter().map(|s| s.inlier_ratio).collect();
+    // Frames are made and written batch by batch: memory does not grow with --frames.
+    let written = angle_i2p::synth::write_bag(out, &TopicMap::default(), cfg)?;
     println!(
         "synth {preset} (seed {}): {} frames, {} map points, mean inlier ratio {:.3} → {}",
         cfg.seed,
-        scene.frames.len(),
-        scene.map.points.len(),
-        angle_i2p::eval::mean(&irs).unwrap_or(0.0),
+        written.frames,
+        written.map_points,
+        written.mean_inlier_ratio,
         out.display()
     );
     Ok(())

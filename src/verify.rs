@@ -8,6 +8,7 @@ use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{fit_increasing_affine, AffineFitParams, DepthImage, DepthKind, Intrinsics, PriorSpace};
+use crate::map_index::{CulledRender, PointSlice};
 use crate::pnp::{Agreement, PoseVerifier, Verification};
 use crate::rng::splitmix64_hash;
 
@@ -33,8 +34,13 @@ pub struct VerifyParams {
     /// A frame whose best candidate agrees with the prior in less than this share of what it
     /// sees has an unreliable prior: the pose is chosen on geometry alone.
     pub min_trust: f64,
-    /// Map points rendered, at most (an even subsample of the map).
+    /// Map points rendered, at most (an even subsample of the map, or of what is in view).
     pub max_map_points: usize,
+    /// A map larger than this (bounding-box diagonal, m) is culled per candidate pose: only its
+    /// points within this range in the view frustum are rendered ([`crate::map_index`]).
+    pub render_range_m: f64,
+    /// Side of the voxels the map is culled by, m.
+    pub render_voxel_m: f64,
     /// Side of the render's image cells, pixels.
     pub cell_px: f64,
     /// A cell agrees when |z − (a·prior + b)| < tolerance·z.
@@ -57,6 +63,8 @@ impl Default for VerifyParams {
             max_iterations: 10_000,
             min_trust: 0.7,
             max_map_points: 10_000,
+            render_range_m: 30.0,
+            render_voxel_m: 2.0,
             cell_px: 32.0,
             tolerance: 0.1,
             coverage_weight: 0.25,
@@ -82,13 +90,16 @@ impl VerifyParams {
     }
 }
 
-/// The map points a verifier renders: an even subsample of the map, fixed when the map is set.
+/// The map points a verifier renders: an even subsample of the map, fixed when the map is set,
+/// or (a map larger than the render range) the points in view at each pose, culled from the
+/// map's index.
 #[derive(Clone, Debug, Default)]
 pub struct RenderMap {
     /// Coordinates in separate arrays, so the projection vectorises.
     x: Vec<f32>,
     y: Vec<f32>,
     z: Vec<f32>,
+    culled: Option<CulledRender>,
 }
 
 impl RenderMap {
@@ -107,14 +118,30 @@ impl RenderMap {
         map
     }
 
+    /// Renders what `culled` finds in view at each pose.
+    pub fn culled(culled: CulledRender) -> Self {
+        Self { culled: Some(culled), ..Self::default() }
+    }
+
     pub fn len(&self) -> usize {
-        self.x.len()
+        self.culled.as_ref().map_or(self.x.len(), |c| c.index.grid().len())
     }
 
     pub fn is_empty(&self) -> bool {
-        self.x.is_empty()
+        self.len() == 0
+    }
+
+    /// The points to project at the camera-to-map `pose`.
+    fn slices(&self, pose: &Isometry3<f64>, intrinsics: &Intrinsics) -> Vec<PointSlice<'_>> {
+        match &self.culled {
+            Some(c) => c.slices(pose, intrinsics, NEAR_M as f64),
+            None => vec![PointSlice { x: &self.x, y: &self.y, z: &self.z }],
+        }
     }
 }
+
+/// Map points nearer than this in front of the camera are not rendered, metres.
+const NEAR_M: f32 = 0.05;
 
 /// Render cells a verifier allocates at most (a 32 768-px-wide image in 32 px cells, squared).
 const MAX_CELLS: usize = 1 << 20;
@@ -194,14 +221,16 @@ impl<'a> PriorVerifier<'a> {
         let (cx, cy) = (k.cx as f32 * inv_cell, k.cy as f32 * inv_cell);
         let (w, h) = (k.width as f32 * inv_cell, k.height as f32 * inv_cell);
         let mut depth = vec![f32::INFINITY; self.rows * self.cols];
-        let (cols, map) = (self.cols as u32, self.map);
+        let cols = self.cols as u32;
         let (r0, r1, r2) =
             ([r[(0, 0)], r[(0, 1)], r[(0, 2)]], [r[(1, 0)], r[(1, 1)], r[(1, 2)]], [r[(2, 0)], r[(2, 1)], r[(2, 2)]]);
         // In blocks: a branch-free pass that projects (vectorised), then the scatter.
         const BLOCK: usize = 256;
         let mut cell = [u32::MAX; BLOCK];
         let mut zs = [0f32; BLOCK];
-        for start in (0..map.len()).step_by(BLOCK) {
+        let slices = self.map.slices(pose, k);
+        let blocks = slices.iter().flat_map(|m| (0..m.len()).step_by(BLOCK).map(move |start| (m, start)));
+        for (map, start) in blocks {
             let end = (start + BLOCK).min(map.len());
             let (xs, ys, zm) = (&map.x[start..end], &map.y[start..end], &map.z[start..end]);
             let points = xs.iter().zip(ys).zip(zm);
@@ -211,7 +240,7 @@ impl<'a> PriorVerifier<'a> {
                 let cz = r2[0] * px + r2[1] * py + r2[2] * pz + t.z;
                 let iz = 1.0 / cz;
                 let (u, v) = (fx * x * iz + cx, fy * y * iz + cy);
-                let visible = cz > 0.05 && u >= 0.0 && v >= 0.0 && u < w && v < h;
+                let visible = cz > NEAR_M && u >= 0.0 && v >= 0.0 && u < w && v < h;
                 *c = if visible { v as u32 * cols + u as u32 } else { u32::MAX };
                 *z = cz;
             }

@@ -163,37 +163,44 @@ pub fn write_input_bag(
     let mut order: Vec<&Frame> = frames.iter().collect();
     order.sort_by_key(|f| f.stamp);
     for f in order {
-        let (t, cam) = (f.stamp, f.camera_frame_id.as_str());
-        w.write(&topics.camera_info, t, &convert::camera_info(t, cam, &f.intrinsics))?;
-        if let Some(image) = &f.image {
-            let msg = convert::compressed_image_msg(t, cam, image)
-                .map_err(|e| BagError::Write { path: dir.to_path_buf(), reason: e.to_string() })?;
-            w.write(&topics.image, t, &msg)?;
-        }
-        if let Some(prior) = &f.depth_prior {
-            w.write(&topics.depth_prior, t, &convert::image_32fc1(t, cam, prior))?;
-        }
-        let corr = convert::correspondences_msg(t, cam, &f.map_frame_id, &f.correspondences);
-        w.write(&topics.correspondences, t, &corr)?;
-        if let Some(gt) = &f.ground_truth {
-            if let Some(pose) = &gt.pose {
-                w.write(&topics.ground_truth_pose, t, &convert::pose_stamped(t, &f.map_frame_id, pose))?;
-            }
-            if let Some(depth) = &gt.depth {
-                w.write(&topics.ground_truth_depth, t, &convert::image_16uc1_mm(t, cam, depth))?;
-            }
-        }
+        write_frame(&mut w, topics, f)?;
     }
     w.finish()?;
+    Ok(())
+}
+
+/// Writes the messages of one input frame (camera info, image, prior, correspondences, ground
+/// truth), all at the frame's stamp.
+pub fn write_frame(w: &mut BagWriter, topics: &TopicMap, f: &Frame) -> Result<(), BagError> {
+    let (t, cam) = (f.stamp, f.camera_frame_id.as_str());
+    w.write(&topics.camera_info, t, &convert::camera_info(t, cam, &f.intrinsics))?;
+    if let Some(image) = &f.image {
+        let msg = convert::compressed_image_msg(t, cam, image)
+            .map_err(|e| BagError::Write { path: w.dir().to_path_buf(), reason: e.to_string() })?;
+        w.write(&topics.image, t, &msg)?;
+    }
+    if let Some(prior) = &f.depth_prior {
+        w.write(&topics.depth_prior, t, &convert::image_32fc1(t, cam, prior))?;
+    }
+    let corr = convert::correspondences_msg(t, cam, &f.map_frame_id, &f.correspondences);
+    w.write(&topics.correspondences, t, &corr)?;
+    if let Some(gt) = &f.ground_truth {
+        if let Some(pose) = &gt.pose {
+            w.write(&topics.ground_truth_pose, t, &convert::pose_stamped(t, &f.map_frame_id, pose))?;
+        }
+        if let Some(depth) = &gt.depth {
+            w.write(&topics.ground_truth_depth, t, &convert::image_16uc1_mm(t, cam, depth))?;
+        }
+    }
     Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::msgs;
     use crate::frame::{CameraImage, Correspondence, EncodedImage, GroundTruth, Stamp};
     use crate::geometry::{DepthImage, Intrinsics};
+    use crate::msgs;
     use nalgebra::{Isometry3, Point2, Point3, Vector3};
 
     fn frame(stamp: Stamp, with_prior: bool) -> Frame {

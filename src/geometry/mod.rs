@@ -225,6 +225,19 @@ impl PointIndex {
         Some(tree.query(&[query.x, query.y, query.z]).nearest_one::<SquaredEuclidean<f32>>().execute().item as usize)
     }
 
+    /// The index of the point nearest to `query` if one lies within `radius` (its cost follows
+    /// the points within `radius`, not the map's density farther out).
+    pub fn nearest_within(&self, query: &Point3<f32>, radius: f32) -> Option<usize> {
+        let tree = self.tree.as_ref()?;
+        let one = std::num::NonZero::new(1)?;
+        let found = tree
+            .query(&[query.x, query.y, query.z])
+            .nearest_n::<SquaredEuclidean<f32>>(one)
+            .within(radius * radius)
+            .execute();
+        found.first().map(|n| n.item as usize)
+    }
+
     /// Indices of the `k` nearest points to `query`, nearest first.
     pub fn nearest(&self, query: &Point3<f32>, k: usize) -> Vec<usize> {
         let k = k.min(self.len);

@@ -10,7 +10,9 @@ use super::initial_pose::PoseGate;
 use super::log::{lock, warn};
 use super::outputs::Outputs;
 use super::queue::DropOldestQueue;
-use crate::frame::{Frame, MapCloud, Stamp};
+use crate::frame::{Frame, Stamp};
+use crate::map_index::swap::MapSwap;
+use crate::map_index::{IndexSettings, MapIndex};
 use crate::pipeline::{Localization, Localizer, LocalizerParams, SetupError};
 
 /// Why a frame got no localization at all (not even a failure value).
@@ -45,11 +47,11 @@ async fn localize(localizer: Localizer, frame: Frame) -> Result<Localized, Local
     }
 }
 
-/// A localizer with `params`, on `map` when one was set.
-fn fresh_localizer(params: &LocalizerParams, map: Option<&MapCloud>) -> Result<Localizer, SetupError> {
+/// A localizer with `params`, on the indexed map when one was set.
+fn fresh_localizer(params: &LocalizerParams, map: Option<Arc<MapIndex>>) -> Result<Localizer, SetupError> {
     let mut localizer = Localizer::new(params.clone())?;
-    if let Some(m) = map {
-        localizer.set_map(m);
+    if let Some(index) = map {
+        localizer.set_map_index(index);
     }
     Ok(localizer)
 }
@@ -63,9 +65,11 @@ pub async fn run(
 ) {
     let params = localizer.params().clone();
     let mut localizer = Some(localizer);
-    let mut map: Option<Arc<MapCloud>> = None;
+    // A new map is indexed on its own thread and swapped in between two frames (the first one
+    // is waited for).
+    let mut maps = MapSwap::default();
     while let Some(job) = queue.pop().await {
-        let mut current = match localizer.take().map_or_else(|| fresh_localizer(&params, map.as_deref()), Ok) {
+        let mut current = match localizer.take().map_or_else(|| fresh_localizer(&params, maps.current()), Ok) {
             Ok(current) => current,
             Err(e) => {
                 // It was set up once with these parameters; count the frame and try again next time.
@@ -77,8 +81,10 @@ pub async fn run(
             }
         };
         if let Some(new) = job.new_map {
-            current.set_map(&new);
-            map = Some(new);
+            maps.new_map(new, IndexSettings::from_verify(&params.verify));
+        }
+        if let Some(index) = maps.take_ready() {
+            current.set_map_index(index);
         }
         let done = match localize(current, job.frame).await {
             Ok(done) => done,

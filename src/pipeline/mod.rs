@@ -147,13 +147,20 @@ impl Localizer {
         Ok(Self { params, rejector, render_map: RenderMap::default() })
     }
 
-    /// The map frames are localized against (rejectors that use its geometry keep it).
+    /// The map frames are localized against (indexed here; see [`Localizer::set_map_index`]).
     pub fn set_map(&mut self, map: &crate::frame::MapCloud) {
+        let settings = crate::map_index::IndexSettings::from_verify(&self.params.verify);
+        self.set_map_index(std::sync::Arc::new(crate::map_index::MapIndex::build(map.points.clone(), &settings)));
+    }
+
+    /// The map, already indexed (an index may be shared by several localizers, and built on
+    /// another thread): rejectors that use its geometry keep it, the verifier renders from it.
+    pub fn set_map_index(&mut self, index: std::sync::Arc<crate::map_index::MapIndex>) {
         if let Some(r) = self.rejector.as_mut() {
-            r.set_map(map);
+            r.set_map_index(&index);
         }
         self.render_map = if self.params.verify.enabled {
-            RenderMap::new(&map.points, self.params.verify.max_map_points)
+            crate::map_index::render_map(&index, &self.params.verify)
         } else {
             RenderMap::default()
         };

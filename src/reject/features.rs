@@ -6,7 +6,7 @@
 use nalgebra::{Point3, Vector3};
 
 use crate::consistency::estimate_scale;
-use crate::geometry::{centroid, point_cloud_normals, FrameGeometry, PointIndex};
+use crate::geometry::{centroid, FrameGeometry};
 
 /// Length of one feature vector.
 pub const FEATURE_DIM: usize = 24;
@@ -37,22 +37,10 @@ pub fn centred_clouds(geometry: &FrameGeometry, rescale: bool) -> (Vec<Vector3<f
     (centred_image, centred_map)
 }
 
-/// The map, indexed once, with the normal of every map point (PCA over its
-/// [`MAP_NORMAL_NEIGHBOURS`] nearest, sign left to each frame): a frame then needs one
-/// nearest-neighbour lookup per correspondence instead of a k-NN and an eigen-solve.
-pub struct IndexedMap {
-    pub points: Vec<Point3<f32>>,
-    pub index: PointIndex,
-    pub normals: Vec<Vector3<f32>>,
-}
-
-impl IndexedMap {
-    pub fn new(points: Vec<Point3<f32>>) -> Self {
-        let index = PointIndex::new(&points);
-        let normals = point_cloud_normals(&index, &points, MAP_NORMAL_NEIGHBOURS);
-        Self { points, index, normals }
-    }
-}
+/// The map, indexed once, with the normal of each map point a frame uses (PCA over its
+/// [`MAP_NORMAL_NEIGHBOURS`] nearest, sign left to each frame) computed on first use and cached.
+pub type IndexedMap = crate::map_index::MapIndex;
+const _: () = assert!(MAP_NORMAL_NEIGHBOURS == crate::map_index::NORMAL_NEIGHBOURS);
 
 /// n^P: the normal of the map point nearest to each correspondence's map point, oriented
 /// towards the centroid of the frame's map points (a choice that moves with the map, like the
@@ -62,9 +50,10 @@ pub fn map_normals(map: &IndexedMap, geometry: &FrameGeometry) -> Vec<Vector3<f6
     geometry
         .map_points
         .iter()
-        .map(|q| {
-            let Some(nearest) = map.index.nearest_one(&q.cast::<f32>()) else { return Vector3::zeros() };
-            let n: Vector3<f64> = map.normals[nearest].cast();
+        .zip(map.nearest_normals(&geometry.map_points))
+        .map(|(q, normal)| {
+            let Some(normal) = normal else { return Vector3::zeros() };
+            let n: Vector3<f64> = normal.cast();
             if n.dot(&(towards - q)) < 0.0 {
                 -n
             } else {

@@ -54,7 +54,11 @@ pub enum RejectError {
 pub trait Rejector: Send {
     fn name(&self) -> &'static str;
     /// A new map to localize against (rejectors that use map geometry keep it).
-    fn set_map(&mut self, _map: &crate::frame::MapCloud) {}
+    fn set_map(&mut self, map: &crate::frame::MapCloud) {
+        self.set_map_index(&std::sync::Arc::new(crate::map_index::MapIndex::new(map.points.clone())));
+    }
+    /// The map, indexed (shared, see [`crate::map_index`]).
+    fn set_map_index(&mut self, _index: &std::sync::Arc<crate::map_index::MapIndex>) {}
     fn reject(&mut self, geometry: &FrameGeometry) -> Result<Rejection, RejectError>;
 }
 

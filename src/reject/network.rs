@@ -6,14 +6,13 @@
 //! `ORT_DYLIB_PATH`, else `.ort/libonnxruntime.so.1.31.1` (`make ort` puts it there).
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use std::borrow::Cow;
 
 use super::inputs::{build_inputs, IndexedMap, NetworkInputs, TensorValues};
 pub use super::network_params::{KeypointRanking, NetworkParams};
 use super::{top_k, FrameGeometry, RejectError, Rejection, Rejector, SpectralParams, SpectralRejector};
-use crate::frame::MapCloud;
 use ort::session::{Session, SessionInputValue};
 use ort::value::Tensor;
 
@@ -77,7 +76,7 @@ pub struct NetworkRejector {
     params: NetworkParams,
     session: Session,
     spectral: SpectralRejector,
-    map: Option<IndexedMap>,
+    map: Option<Arc<IndexedMap>>,
 }
 
 impl NetworkRejector {
@@ -99,7 +98,7 @@ impl NetworkRejector {
 
     /// The network's inputs for one frame (eq. 9 features, graphs, θ).
     pub fn inputs(&mut self, geometry: &FrameGeometry) -> NetworkInputs {
-        build_inputs(geometry, self.map.as_ref(), &mut self.spectral, &self.params)
+        build_inputs(geometry, self.map.as_deref(), &mut self.spectral, &self.params)
     }
 
     /// The network's scores for prepared inputs.
@@ -137,8 +136,8 @@ impl Rejector for NetworkRejector {
         "angle_i2p"
     }
 
-    fn set_map(&mut self, map: &MapCloud) {
-        self.map = Some(IndexedMap::new(map.points.clone()));
+    fn set_map_index(&mut self, index: &Arc<IndexedMap>) {
+        self.map = Some(Arc::clone(index));
     }
 
     fn reject(&mut self, geometry: &FrameGeometry) -> Result<Rejection, RejectError> {

@@ -9,7 +9,12 @@ use crate::geometry::Intrinsics;
 pub const PRESETS: [&str; 4] = ["sift", "hard", "extreme", "easy"];
 /// Modifiers a tier may be joined with by `+` in [`SynthConfig::preset`]: the sensor and scene
 /// (`close`, `hd`, `wide`), the map (`small-map`, `large-map`) and the prior (`harsh`, `disparity`).
-pub const PRESET_MODIFIERS: [&str; 7] = ["close", "hd", "wide", "small-map", "large-map", "harsh", "disparity"];
+pub const PRESET_MODIFIERS: [&str; 8] =
+    ["close", "hd", "wide", "small-map", "large-map", "harsh", "disparity", "building"];
+/// Rooms per row of a building, at most.
+pub const MAX_BUILDING_ROOMS: usize = 32;
+/// Map points `synth` makes, at most.
+pub const MAX_MAP_POINTS: usize = 50_000_000;
 
 /// What kind of monocular prior the generator simulates.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -100,6 +105,12 @@ pub struct SynthConfig {
     pub jpeg_quality: u8,
     /// The kind of prior and its error classes.
     pub prior_kind: SynthPriorKind,
+    /// 0: one room. N: a building of two rows of N rooms of `room_size` joined by doorways,
+    /// the camera on a loop through all of them ([`super::Scene::building`]).
+    pub building_rooms: usize,
+    /// 0: the map as sampled. N: about N points — the sampled map (which the matches are
+    /// drawn from, so frames do not change with N) plus points sampled on the same surfaces.
+    pub map_points: usize,
 }
 
 impl Default for SynthConfig {
@@ -141,6 +152,8 @@ impl Default for SynthConfig {
             path_radius_m: 0.35,
             jpeg_quality: 90,
             prior_kind: SynthPriorKind::Depth,
+            building_rooms: 0,
+            map_points: 0,
         }
     }
 }
@@ -207,6 +220,7 @@ impl SynthConfig {
                 ..self
             },
             "disparity" => SynthConfig { prior_kind: SynthPriorKind::Disparity, ..self },
+            "building" => super::building::preset(self),
             _ => return None,
         })
     }
@@ -223,6 +237,8 @@ impl SynthConfig {
                 Some(SynthConfig { correspondences: 300, inlier_ratio: 0.06, patch_outlier_fraction: 0.75, ..base })
             }
             "easy" => Some(SynthConfig { correspondences: 400, inlier_ratio: 0.83, ..base }),
+            // A building alone is the hard tier in a building.
+            "building" => Self::tier("hard")?.with_modifier("building"),
             _ => None,
         }
     }
@@ -292,6 +308,8 @@ impl SynthConfig {
             path_radius_m: nonneg(self.path_radius_m, d.path_radius_m).min(room[0].min(room[1]) / 2.0 - 0.5),
             jpeg_quality: self.jpeg_quality.clamp(1, 100),
             prior_kind: self.prior_kind,
+            building_rooms: self.building_rooms.min(MAX_BUILDING_ROOMS),
+            map_points: self.map_points.min(MAX_MAP_POINTS),
         }
     }
 }

@@ -8,6 +8,7 @@
 //! bag tiers of `make_rgbd_bags.py` (see [`SynthConfig::preset`]). Everything is
 //! deterministic for a seed.
 
+mod building;
 mod config;
 mod corr;
 mod prior;
@@ -24,10 +25,11 @@ use crate::frame::{CameraImage, EncodedImage, Frame, GroundTruth, MapCloud, Stam
 use crate::geometry::{DepthImage, Intrinsics, PointIndex};
 use crate::rng::mix64;
 
-pub use config::{SynthConfig, SynthPriorKind, PRESETS, PRESET_MODIFIERS};
+pub use building::{write_bag, SynthRun, SynthSummary};
+pub use config::{SynthConfig, SynthPriorKind, MAX_BUILDING_ROOMS, MAX_MAP_POINTS, PRESETS, PRESET_MODIFIERS};
 pub use corr::CorrLabel;
 pub use prior::{depth_prior, Prior, PriorParams};
-pub use scene::{Hit, Scene, Solid, Texture};
+pub use scene::{BuildingLayout, Hit, Scene, Solid, Texture};
 
 /// Stamp of the map cloud; frame `n` (0-based) is stamped `FIRST_STAMP + (n + 1) · 100 ms`.
 pub const FIRST_STAMP: Stamp = 1_700_000_000_000_000_000;
@@ -123,30 +125,31 @@ pub fn inlier_mask(frame: &Frame, threshold_m: f64) -> Vec<bool> {
         .collect()
 }
 
-/// Generates a scene, deterministically for `config.seed`.
+/// Generates a scene, deterministically for `config.seed` (all frames in memory; a long
+/// trajectory streams through [`SynthRun`] instead).
 pub fn generate(config: &SynthConfig) -> SynthScene {
-    let config = config.sanitized();
-    let mut rng = StdRng::seed_from_u64(mix64(config.seed ^ 0x05EE_D0F5_CE1E));
-    let [l, w, h] = config.room_size;
-    let scene = Scene::room(Vector3::new(l, w, h), &mut rng);
-    let map = map_cloud(&scene, &config, &mut rng);
-    let path = CameraPath::random(&scene, &config, &mut rng);
-    let index = config.snap_to_map.then(|| PointIndex::new(&map.points));
-    let ctx = FrameContext { scene: &scene, config: &config, map: &map, index: index.as_ref(), path: &path };
+    let run = SynthRun::new(config);
+    let (frames, stats) = run.frames(0..run.frame_count()).into_iter().unzip();
+    let config = run.config().clone();
+    SynthScene { map: run.into_map(), frames, stats, config }
+}
 
-    let n = config.frames;
+/// Frames `range` of `ctx`, generated on up to 8 threads, in order.
+fn frames_parallel(ctx: &FrameContext, range: std::ops::Range<usize>) -> Vec<(Frame, FrameStats)> {
+    let (first, n) = (range.start, range.len());
     let threads = std::thread::available_parallelism().map_or(1, |p| p.get()).clamp(1, 8).min(n.max(1));
     let mut results: Vec<Option<(Frame, FrameStats)>> = Vec::new();
     results.resize_with(n, || None);
     if threads <= 1 {
         for (k, slot) in results.iter_mut().enumerate() {
-            *slot = Some(ctx.frame(k));
+            *slot = Some(ctx.frame(first + k));
         }
     } else {
-        let ctx = &ctx;
         let chunks: Vec<Vec<(usize, (Frame, FrameStats))>> = std::thread::scope(|s| {
             let handles: Vec<_> = (0..threads)
-                .map(|t| s.spawn(move || (t..n).step_by(threads).map(|k| (k, ctx.frame(k))).collect::<Vec<_>>()))
+                .map(|t| {
+                    s.spawn(move || (t..n).step_by(threads).map(|k| (k, ctx.frame(first + k))).collect::<Vec<_>>())
+                })
                 .collect();
             handles.into_iter().map(|h| h.join().unwrap_or_default()).collect()
         });
@@ -158,12 +161,11 @@ pub fn generate(config: &SynthConfig) -> SynthScene {
         // A worker that died (it cannot, short of a bug) leaves holes: fill them serially.
         for (k, slot) in results.iter_mut().enumerate() {
             if slot.is_none() {
-                *slot = Some(ctx.frame(k));
+                *slot = Some(ctx.frame(first + k));
             }
         }
     }
-    let (frames, stats) = results.into_iter().flatten().unzip();
-    SynthScene { map, frames, stats, config }
+    results.into_iter().flatten().collect()
 }
 
 /// The map cloud: surfaces sampled uniformly by area, jittered, voxel-downsampled.
@@ -200,13 +202,15 @@ fn gaussian3(rng: &mut StdRng, sigma: f64) -> Vector3<f64> {
     ) * sigma
 }
 
-/// A smooth loop about the room centre, looking outward with a little pitch and roll.
+/// A smooth loop about the room centre, looking outward with a little pitch and roll (or, in a
+/// building, a loop along `route`, looking ahead).
 struct CameraPath {
     centre: Point3<f64>,
     radius: f64,
     phase: f64,
     wobble: [f64; 4],
     frames: usize,
+    route: Option<building::Route>,
 }
 
 impl CameraPath {
@@ -223,6 +227,7 @@ impl CameraPath {
                 rng.random::<f64>() * tau,
             ],
             frames: config.frames.max(1),
+            route: None,
         }
     }
 
@@ -230,9 +235,14 @@ impl CameraPath {
     fn pose(&self, k: usize) -> Isometry3<f64> {
         let phi = self.phase + std::f64::consts::TAU * k as f64 / self.frames as f64;
         let [a, b, c, d] = self.wobble;
-        let position =
-            self.centre + Vector3::new(self.radius * phi.cos(), self.radius * phi.sin(), 0.08 * (2.0 * phi + a).sin());
-        let yaw = phi + 0.35 * (3.0 * phi + b).sin();
+        let (position, yaw) = match &self.route {
+            Some(route) => route.at(k as f64 / self.frames as f64, 0.08 * (2.0 * phi + a).sin()),
+            None => (
+                self.centre
+                    + Vector3::new(self.radius * phi.cos(), self.radius * phi.sin(), 0.08 * (2.0 * phi + a).sin()),
+                phi + 0.35 * (3.0 * phi + b).sin(),
+            ),
+        };
         let pitch = -0.2 + 0.1 * (2.0 * phi + c).sin();
         let roll = 0.05 * (5.0 * phi + d).sin();
         let forward = Vector3::new(pitch.cos() * yaw.cos(), pitch.cos() * yaw.sin(), pitch.sin());
@@ -265,9 +275,7 @@ pub(crate) struct Render {
 impl FrameContext<'_> {
     fn frame(&self, k: usize) -> (Frame, FrameStats) {
         let c = self.config;
-        let mut rng = StdRng::seed_from_u64(mix64(
-            c.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ mix64(k as u64 + 1),
-        ));
+        let mut rng = StdRng::seed_from_u64(mix64(c.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ mix64(k as u64 + 1)));
         let intrinsics = c.intrinsics();
         let pose = self.path.pose(k);
         let stamp = FIRST_STAMP + (k as i64 + 1) * 100_000_000;
@@ -350,6 +358,9 @@ impl FrameContext<'_> {
         let mut depth = vec![0.0f32; w * h];
         let mut points = vec![Point3::new(f64::NAN, f64::NAN, f64::NAN); w * h];
         let mut rgb = vec![0u8; w * h * 3];
+        // A building has hundreds of solids: each ray tries only those in view.
+        let in_view =
+            (self.scene.solids.len() > building::MANY_SOLIDS).then(|| self.scene.solids_in_view(pose, intrinsics));
         for v in 0..h {
             for u in 0..w {
                 let i = v * w + u;
@@ -360,14 +371,17 @@ impl FrameContext<'_> {
                     1.0,
                 );
                 let dir = rot * d_cam;
-                let Some(hit) = self.scene.cast(&origin, &dir) else { continue };
+                let hit = match &in_view {
+                    Some(candidates) => self.scene.cast_among(&origin, &dir, candidates),
+                    None => self.scene.cast(&origin, &dir),
+                };
+                let Some(hit) = hit else { continue };
                 let p = origin + dir * hit.toi;
                 depth[i] = hit.toi as f32;
                 points[i] = p;
                 let col = self.scene.shade(&p, &hit, &origin);
                 // Linear → sRGB-ish gamma, plus a little deterministic sensor noise.
-                let noise =
-                    (mix64((i as u64) ^ self.scene.texture_seed ^ (self.config.seed << 20)) % 7) as f64 - 3.0;
+                let noise = (mix64((i as u64) ^ self.scene.texture_seed ^ (self.config.seed << 20)) % 7) as f64 - 3.0;
                 for ch in 0..3 {
                     rgb[i * 3 + ch] = (col[ch].powf(1.0 / 2.2) * 255.0 + noise).round().clamp(0.0, 255.0) as u8;
                 }

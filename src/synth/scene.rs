@@ -14,6 +14,9 @@ use rand::RngExt;
 
 use crate::rng::mix64;
 
+mod building;
+pub use building::BuildingLayout;
+
 /// How a surface is textured in the camera image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Texture {

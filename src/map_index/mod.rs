@@ -1,0 +1,239 @@
+//! The map, indexed once when it is set and queried per frame, so that what a frame costs
+//! follows what it uses, not the size of the map:
+//!
+//! * a k-d tree over every point (nearest map point of a correspondence, and the neighbourhood
+//!   of its normal), and the normals themselves computed lazily and cached ([`LazyNormals`]);
+//! * a voxel grid with a k-d tree over its voxels ([`VoxelGrid`]), from which the verifier takes
+//!   the points a candidate pose can see — within range, in the frustum, thinned evenly to its
+//!   point budget ([`render_map`]).
+//!
+//! Both are built in parallel (the two structures on two threads, the grid's sort with rayon),
+//! behind an `Arc`: one index serves every localizer (camera) that uses the map, and a new map
+//! can be indexed on another thread while frames go on against the old one ([`swap`]).
+
+mod normals;
+pub mod swap;
+mod voxels;
+
+#[cfg(test)]
+mod tests;
+
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use rayon::prelude::*;
+
+use crate::geometry::{Intrinsics, PointIndex};
+use crate::verify::{RenderMap, VerifyParams};
+
+pub use normals::{point_normal, LazyNormals};
+pub use voxels::{PointSlice, View, VoxelGrid};
+
+/// Neighbours of a map point that define its normal (the learned rejector's n^P).
+pub const NORMAL_NEIGHBOURS: usize = 16;
+
+/// On a map wider than the render range, a correspondence takes the normal of the nearest map
+/// point within this distance, or none (in open space, off every surface). Unbounded, the
+/// search for a point off the surfaces visits every map point around it: its cost would grow with
+/// the map's density.
+pub const NORMAL_SEARCH_RADIUS_M: f32 = 0.25;
+
+/// How the map is bucketed for culling.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IndexSettings {
+    /// Side of a culling voxel, metres.
+    pub voxel_m: f32,
+    /// A map wider than this (bounding-box diagonal) looks up normals within
+    /// [`NORMAL_SEARCH_RADIUS_M`] only.
+    pub bounded_search_above_m: f64,
+}
+
+impl IndexSettings {
+    /// The culling voxels the verification parameters ask for.
+    pub fn from_verify(params: &VerifyParams) -> Self {
+        Self { voxel_m: params.render_voxel_m as f32, bounded_search_above_m: params.render_range_m }
+    }
+}
+
+impl Default for IndexSettings {
+    fn default() -> Self {
+        Self::from_verify(&VerifyParams::default())
+    }
+}
+
+/// The indexed map (see the module doc).
+pub struct MapIndex {
+    points: Vec<Point3<f32>>,
+    tree: PointIndex,
+    normals: LazyNormals,
+    grid: VoxelGrid,
+    /// Diagonal of the finite points' bounding box, metres (0 for fewer than two points).
+    extent_m: f64,
+    /// How far a correspondence looks for its map point's normal (`None`: unbounded).
+    normal_search_m: Option<f32>,
+}
+
+impl MapIndex {
+    /// Indexes `points` with the default settings.
+    pub fn new(points: Vec<Point3<f32>>) -> Self {
+        Self::build(points, &IndexSettings::default())
+    }
+
+    /// Indexes `points`: the point tree and the voxel grid are built side by side.
+    pub fn build(points: Vec<Point3<f32>>, settings: &IndexSettings) -> Self {
+        let (tree, grid, extent_m) = std::thread::scope(|s| {
+            let grid = s.spawn(|| VoxelGrid::new(&points, settings.voxel_m));
+            let extent = bounding_diagonal(&points);
+            let tree = PointIndex::new(&points);
+            // A panicking grid build (it cannot, short of a bug) leaves an empty grid.
+            (tree, grid.join().unwrap_or_default(), extent)
+        });
+        let normal_search_m = (extent_m > settings.bounded_search_above_m).then_some(NORMAL_SEARCH_RADIUS_M);
+        Self { points, tree, normals: LazyNormals::default(), grid, extent_m, normal_search_m }
+    }
+
+    /// The map's points, in the order they were given.
+    pub fn points(&self) -> &[Point3<f32>] {
+        &self.points
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Diagonal of the map's bounding box, metres.
+    pub fn extent_m(&self) -> f64 {
+        self.extent_m
+    }
+
+    pub fn grid(&self) -> &VoxelGrid {
+        &self.grid
+    }
+
+    /// The index of the map point nearest to `query` (`None` for an empty map).
+    pub fn nearest(&self, query: &Point3<f32>) -> Option<usize> {
+        self.tree.nearest_one(query)
+    }
+
+    /// For each query, the normal (arbitrary sign, unit or zero when degenerate) of the map point
+    /// nearest to it (on a map wider than the render range, within [`NORMAL_SEARCH_RADIUS_M`]);
+    /// `None` for an empty map or nothing near. Computed on first use and cached.
+    pub fn nearest_normals(&self, queries: &[Point3<f64>]) -> Vec<Option<Vector3<f32>>> {
+        let nearest_one = |q: &Point3<f64>| match self.normal_search_m {
+            None => self.nearest(&q.cast::<f32>()),
+            Some(radius) => self.tree.nearest_within(&q.cast::<f32>(), radius),
+        };
+        let nearest: Vec<Option<usize>> = queries.iter().map(nearest_one).collect();
+        let which: Vec<usize> = nearest.iter().flatten().copied().collect();
+        let mut normals = self.normals.get(&self.tree, &self.points, NORMAL_NEIGHBOURS, &which).into_iter();
+        nearest.iter().map(|n| n.and_then(|_| normals.next())).collect()
+    }
+
+    /// The normal of every point, computed now (in parallel): what the lazy normals replace.
+    pub fn eager_normals(&self) -> Vec<Vector3<f32>> {
+        self.points
+            .par_iter()
+            .map_init(Vec::new, |neighbours, p| {
+                point_normal(&self.tree, &self.points, p, NORMAL_NEIGHBOURS, neighbours)
+            })
+            .collect()
+    }
+
+    /// Normals computed so far.
+    pub fn cached_normals(&self) -> usize {
+        self.normals.cached()
+    }
+
+    /// The points a camera at `view` may see, thinned evenly to about `budget` ([`VoxelGrid::visible`]).
+    pub fn visible(&self, view: &View, budget: usize) -> Vec<PointSlice<'_>> {
+        self.grid.visible(view, budget)
+    }
+}
+
+impl std::fmt::Debug for MapIndex {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MapIndex")
+            .field("points", &self.points.len())
+            .field("voxels", &self.grid.voxel_count())
+            .field("extent_m", &self.extent_m)
+            .finish()
+    }
+}
+
+/// The verifier's render map for `index`: today's even subsample of the whole map when all of it
+/// lies within the render range (a room: bit-identical renders), else the culled view of the
+/// index (a building: the points in view at each candidate pose, at the budget's density).
+pub fn render_map(index: &Arc<MapIndex>, params: &VerifyParams) -> RenderMap {
+    if index.extent_m() <= params.render_range_m {
+        RenderMap::new(index.points(), params.max_map_points)
+    } else {
+        RenderMap::culled(CulledRender {
+            index: Arc::clone(index),
+            budget: params.max_map_points,
+            range_m: params.render_range_m,
+        })
+    }
+}
+
+/// A render source that culls the map per candidate pose.
+#[derive(Clone, Debug)]
+pub struct CulledRender {
+    pub index: Arc<MapIndex>,
+    /// Points rendered at most per pose (about).
+    pub budget: usize,
+    pub range_m: f64,
+}
+
+impl CulledRender {
+    /// The points to render at the camera-to-map `pose`.
+    pub fn slices(&self, pose: &Isometry3<f64>, intrinsics: &Intrinsics, near_m: f64) -> Vec<PointSlice<'_>> {
+        let view = View { pose, intrinsics, range_m: self.range_m, near_m };
+        self.index.visible(&view, self.budget)
+    }
+}
+
+/// Diagonal of the bounding box of the finite points (0 when fewer than two).
+fn bounding_diagonal(points: &[Point3<f32>]) -> f64 {
+    let empty = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    let (lo, hi) = points
+        .par_iter()
+        .filter(|p| p.iter().all(|v| v.is_finite()))
+        .fold(
+            || empty,
+            |(mut lo, mut hi), p| {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(p[a]);
+                    hi[a] = hi[a].max(p[a]);
+                }
+                (lo, hi)
+            },
+        )
+        .reduce(
+            || empty,
+            |(a_lo, a_hi), (b_lo, b_hi)| {
+                let mut lo = a_lo;
+                let mut hi = a_hi;
+                for a in 0..3 {
+                    lo[a] = lo[a].min(b_lo[a]);
+                    hi[a] = hi[a].max(b_hi[a]);
+                }
+                (lo, hi)
+            },
+        );
+    if lo[0] > hi[0] {
+        return 0.0;
+    }
+    (0..3).map(|a| (hi[a] as f64 - lo[a] as f64).powi(2)).sum::<f64>().sqrt()
+}
+
+/// SplitMix64's finaliser: a well-mixed hash of an integer.
+pub(crate) fn splitmix(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^ (x >> 31)
+}

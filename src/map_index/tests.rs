@@ -1,0 +1,159 @@
+//! The index against brute force on small maps.
+
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+use super::*;
+use crate::geometry::point_cloud_normals;
+
+fn intrinsics() -> Intrinsics {
+    Intrinsics { fx: 300.0, fy: 300.0, cx: 160.0, cy: 120.0, width: 320, height: 240 }
+}
+
+/// Points on the floor, a wall and in the air of a 40 × 30 × 3 m box, spaced irregularly.
+fn cloud(n: usize) -> Vec<Point3<f32>> {
+    (0..n as u64)
+        .map(|i| {
+            let r = |salt: u64| (splitmix(i * 7 + salt) >> 11) as f32 / (1u64 << 53) as f32;
+            match i % 3 {
+                0 => Point3::new(40.0 * r(1), 30.0 * r(2), 0.0),
+                1 => Point3::new(40.0 * r(3), 0.0, 3.0 * r(4)),
+                _ => Point3::new(40.0 * r(5), 30.0 * r(6), 3.0 * r(7)),
+            }
+        })
+        .collect()
+}
+
+/// Camera at `eye` looking along map `forward` (horizontal), image y down.
+fn looking(eye: [f64; 3], yaw: f64) -> Isometry3<f64> {
+    let forward = Vector3::new(yaw.cos(), yaw.sin(), 0.0);
+    let right = forward.cross(&Vector3::z());
+    let down = forward.cross(&right);
+    let r = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[right, down, forward]));
+    Isometry3::from_parts(Translation3::new(eye[0], eye[1], eye[2]), UnitQuaternion::from_rotation_matrix(&r))
+}
+
+/// Whether `p` projects into the image, in front of the near plane and within range.
+fn in_view(p: &Point3<f32>, pose: &Isometry3<f64>, k: &Intrinsics, range: f64) -> bool {
+    let q = pose.inverse() * p.cast::<f64>();
+    let Some(px) = k.project(&q) else { return false };
+    q.z > 0.05
+        && (q.coords.norm() <= range)
+        && px.x >= 0.0
+        && px.y >= 0.0
+        && px.x < k.width as f64
+        && px.y < k.height as f64
+}
+
+fn flatten(slices: &[PointSlice]) -> Vec<Point3<f32>> {
+    slices.iter().flat_map(|s| (0..s.len()).map(|i| Point3::new(s.x[i], s.y[i], s.z[i]))).collect()
+}
+
+fn sorted(mut v: Vec<Point3<f32>>) -> Vec<[u32; 3]> {
+    let mut keys: Vec<[u32; 3]> = v.drain(..).map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()]).collect();
+    keys.sort_unstable();
+    keys
+}
+
+#[test]
+fn culling_keeps_exactly_the_points_in_view_when_the_budget_allows() {
+    let points = cloud(30_000);
+    let index = MapIndex::build(points.clone(), &IndexSettings { voxel_m: 1.5, ..IndexSettings::default() });
+    let k = intrinsics();
+    for (eye, yaw, range) in
+        [([5.0, 15.0, 1.5], 0.0, 12.0), ([20.0, 25.0, 2.0], -1.2, 30.0), ([38.0, 2.0, 1.0], 2.5, 8.0)]
+    {
+        let pose = looking(eye, yaw);
+        let view = View { pose: &pose, intrinsics: &k, range_m: range, near_m: 0.05 };
+        let culled = flatten(&index.visible(&view, usize::MAX));
+        let exact: Vec<_> = points.iter().copied().filter(|p| in_view(p, &pose, &k, range)).collect();
+        let culled_in_view: Vec<_> = culled.iter().copied().filter(|p| in_view(p, &pose, &k, range)).collect();
+        assert!(!exact.is_empty());
+        assert_eq!(sorted(culled_in_view), sorted(exact.clone()), "no point in view is culled");
+        // The cull's whole point: far fewer candidates than the map.
+        assert!(culled.len() < points.len() / 2, "{} of {}", culled.len(), points.len());
+        // Everything the cull hands out lies near the view: within range plus a voxel.
+        let reach = range + 1.5 * 3f64.sqrt();
+        let eye = Point3::from(pose.translation.vector);
+        assert!(culled.iter().all(|p| (p.cast::<f64>() - eye).norm() <= reach));
+    }
+}
+
+#[test]
+fn a_budget_thins_every_voxel_evenly() {
+    let points = cloud(60_000);
+    let index = MapIndex::build(points, &IndexSettings { voxel_m: 2.0, ..IndexSettings::default() });
+    let k = intrinsics();
+    let pose = looking([5.0, 15.0, 1.5], 0.0);
+    let view = View { pose: &pose, intrinsics: &k, range_m: 40.0, near_m: 0.05 };
+    let all = index.visible(&view, usize::MAX);
+    let total: usize = all.iter().map(|s| s.len()).sum();
+    let thinned = index.visible(&view, total / 4);
+    assert_eq!(all.len(), thinned.len(), "every voxel keeps a share");
+    let kept: usize = thinned.iter().map(|s| s.len()).sum();
+    assert!(kept >= total / 4 && kept < total / 4 + thinned.len() + 1, "{kept} of {total}");
+    // The kept part of a voxel is spread over it, not its first corner.
+    let (big, big_thin) = all.iter().zip(&thinned).max_by_key(|(a, _)| a.len()).unwrap();
+    let mean = |s: &PointSlice| s.x.iter().sum::<f32>() / s.len() as f32;
+    assert!((mean(big) - mean(big_thin)).abs() < 0.3, "{} vs {}", mean(big), mean(big_thin));
+}
+
+#[test]
+fn lazy_normals_equal_the_eager_ones_bit_for_bit() {
+    let points = cloud(5_000);
+    let index = MapIndex::new(points.clone());
+    let eager = point_cloud_normals(&PointIndex::new(&points), &points, NORMAL_NEIGHBOURS);
+    assert_eq!(index.eager_normals(), eager);
+    let queries: Vec<Point3<f64>> = points.iter().step_by(7).map(|p| p.cast::<f64>()).collect();
+    let lazy = index.nearest_normals(&queries);
+    for (q, n) in queries.iter().zip(&lazy) {
+        let i = index.nearest(&q.cast()).unwrap();
+        assert_eq!(n.unwrap(), eager[i]);
+    }
+    assert_eq!(index.cached_normals(), queries.len(), "only what was asked for is computed");
+    // Asked again: served from the cache, same values.
+    assert_eq!(index.nearest_normals(&queries), lazy);
+    assert!(MapIndex::new(Vec::new()).nearest_normals(&queries).iter().all(Option::is_none));
+}
+
+#[test]
+fn on_a_wide_map_normals_are_looked_up_near_the_surfaces_only() {
+    // The cloud is 50 m wide: wider than the render range, so the lookup is bounded.
+    let index = MapIndex::new(cloud(5_000));
+    assert!(index.extent_m() > VerifyParams::default().render_range_m);
+    let on_floor = Point3::new(20.0, 15.0, 0.0);
+    let floor_point = index.points()[index.nearest(&on_floor.cast()).unwrap()];
+    let near = floor_point.cast::<f64>() + Vector3::new(0.0, 0.0, 0.1);
+    let far_above = Point3::new(20.0, 15.0, 40.0);
+    let normals = index.nearest_normals(&[near, far_above]);
+    assert!(normals[0].is_some(), "a point 10 cm off the floor has its normal");
+    assert!(normals[1].is_none(), "a point 37 m above everything has none");
+}
+
+#[test]
+fn a_map_within_the_render_range_renders_as_before() {
+    let small: Vec<_> = cloud(20_000).into_iter().map(|p| Point3::new(p.x / 10.0, p.y / 10.0, p.z)).collect();
+    let params = VerifyParams::default();
+    let index = Arc::new(MapIndex::new(small.clone()));
+    assert!(index.extent_m() < params.render_range_m);
+    let flat = RenderMap::new(&small, params.max_map_points);
+    let chosen = render_map(&index, &params);
+    assert_eq!(format!("{chosen:?}"), format!("{flat:?}"), "the room-scale render map is today's");
+    let big = Arc::new(MapIndex::new(cloud(20_000)));
+    let params = VerifyParams { render_range_m: 20.0, ..params };
+    assert_eq!(render_map(&big, &params).len(), 20_000, "a building is culled from the whole index");
+}
+
+#[test]
+fn the_background_build_hands_over_the_index() {
+    let map = Arc::new(crate::frame::MapCloud { frame_id: "map".into(), points: cloud(2_000) });
+    let mut background = swap::BackgroundIndex::default();
+    assert!(background.ready().is_none() && background.wait().is_none());
+    background.start(Arc::clone(&map), IndexSettings::default());
+    assert!(background.is_pending());
+    let done = background.wait().unwrap();
+    assert_eq!(done.index.len(), 2_000);
+    assert!(Arc::ptr_eq(&done.map, &map));
+    assert!(!background.is_pending());
+}

@@ -1,0 +1,219 @@
+//! The map's points bucketed in cubic voxels, with a k-d tree over the voxel centres: the
+//! verifier asks it for the points a candidate pose can see (voxels within range and inside
+//! the view frustum), thinned evenly to a point budget, so the cost of a render follows what is
+//! in view, not the size of the map.
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{Isometry3, Point3, Vector3};
+use rayon::prelude::*;
+
+use crate::geometry::Intrinsics;
+
+/// A run of points (separate coordinate arrays, so the projection vectorises).
+#[derive(Clone, Copy, Debug)]
+pub struct PointSlice<'a> {
+    pub x: &'a [f32],
+    pub y: &'a [f32],
+    pub z: &'a [f32],
+}
+
+impl PointSlice<'_> {
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+}
+
+/// One occupied voxel: where its points sit in the grid's arrays.
+#[derive(Clone, Copy, Debug)]
+struct Voxel {
+    start: usize,
+    len: usize,
+}
+
+/// What a camera can see: the pose, the image and how far it looks.
+#[derive(Clone, Copy, Debug)]
+pub struct View<'a> {
+    /// Camera-to-map pose of the optical frame.
+    pub pose: &'a Isometry3<f64>,
+    pub intrinsics: &'a Intrinsics,
+    /// Points farther than this from the camera are not rendered, metres.
+    pub range_m: f64,
+    /// Points nearer than this in front of the camera are not rendered, metres.
+    pub near_m: f64,
+}
+
+/// Voxel-bucketed points; within a voxel, in an order fixed by a hash of each point's index in
+/// the map, so any prefix of a voxel is an even subsample of it.
+#[derive(Debug, Default)]
+pub struct VoxelGrid {
+    voxel_m: f32,
+    voxels: Vec<Voxel>,
+    /// Centre of each voxel, same order as `voxels` (the tree's items index it).
+    centres: Vec<[f32; 3]>,
+    tree: Option<ImmutableKdTree<f32, 3>>,
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+}
+
+/// Voxel coordinates are kept within ±2²⁰ (packed 21 bits an axis): at 1 m voxels, ±1000 km.
+const KEY_LIMIT: i64 = 1 << 20;
+
+fn pack(ix: i64, iy: i64, iz: i64) -> u64 {
+    let bits = |v: i64| (v.clamp(-KEY_LIMIT, KEY_LIMIT - 1) + KEY_LIMIT) as u64;
+    (bits(ix) << 42) | (bits(iy) << 21) | bits(iz)
+}
+
+fn unpack(key: u64) -> [i64; 3] {
+    let field = |shift: u32| ((key >> shift) & ((1 << 21) - 1)) as i64 - KEY_LIMIT;
+    [field(42), field(21), field(0)]
+}
+
+impl VoxelGrid {
+    /// Buckets the finite `points` into voxels of side `voxel_m` (sorted in parallel).
+    pub fn new(points: &[Point3<f32>], voxel_m: f32) -> Self {
+        let voxel_m = if voxel_m.is_finite() && voxel_m > 0.0 { voxel_m } else { 1.0 };
+        let key_of = |p: &Point3<f32>| {
+            let cell = |v: f32| (v / voxel_m).floor() as i64;
+            pack(cell(p.x), cell(p.y), cell(p.z))
+        };
+        // (voxel key, hash of the index in the high half | index in the low half): unique
+        // keys, so the unstable sort is deterministic.
+        let mut order: Vec<(u64, u64)> = points
+            .par_iter()
+            .enumerate()
+            .filter(|(_, p)| p.iter().all(|v| v.is_finite()))
+            .map(|(i, p)| (key_of(p), (super::splitmix(i as u64) & !0xFFFF_FFFF) | i as u64))
+            .collect();
+        order.par_sort_unstable();
+        let mut grid = Self { voxel_m, ..Self::default() };
+        grid.x.reserve_exact(order.len());
+        grid.y.reserve_exact(order.len());
+        grid.z.reserve_exact(order.len());
+        let mut current = None;
+        for &(key, tagged) in &order {
+            if current != Some(key) {
+                current = Some(key);
+                let [ix, iy, iz] = unpack(key);
+                let centre = |c: i64| (c as f32 + 0.5) * voxel_m;
+                grid.voxels.push(Voxel { start: grid.x.len(), len: 0 });
+                grid.centres.push([centre(ix), centre(iy), centre(iz)]);
+            }
+            let p = points[(tagged & 0xFFFF_FFFF) as usize];
+            grid.x.push(p.x);
+            grid.y.push(p.y);
+            grid.z.push(p.z);
+            if let Some(v) = grid.voxels.last_mut() {
+                v.len += 1;
+            }
+        }
+        grid.tree = if grid.centres.is_empty() { None } else { ImmutableKdTree::new_from_slice(&grid.centres).ok() };
+        grid
+    }
+
+    /// Points in the grid.
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    pub fn voxel_count(&self) -> usize {
+        self.voxels.len()
+    }
+
+    /// Every point, as one slice.
+    pub fn all(&self) -> PointSlice<'_> {
+        PointSlice { x: &self.x, y: &self.y, z: &self.z }
+    }
+
+    /// The points of the voxels `view` may see, each voxel thinned to the same share so that
+    /// about `budget` points come back (all of them when fewer are in view). Conservative: a
+    /// voxel is left out only when no point of it can be in the image within range.
+    pub fn visible(&self, view: &View, budget: usize) -> Vec<PointSlice<'_>> {
+        let in_view = self.voxels_in_view(view);
+        let total: usize = in_view.iter().map(|&v| self.voxels[v].len).sum();
+        let keep = if total <= budget { 1.0 } else { budget as f64 / total as f64 };
+        in_view
+            .into_iter()
+            .map(|v| {
+                let Voxel { start, len } = self.voxels[v];
+                let take = ((len as f64 * keep).ceil() as usize).min(len);
+                let end = start + take;
+                PointSlice { x: &self.x[start..end], y: &self.y[start..end], z: &self.z[start..end] }
+            })
+            .collect()
+    }
+
+    /// Indices of the voxels whose bounding sphere reaches inside `view`'s range and frustum,
+    /// in the grid's order (so the render does not depend on the tree's traversal).
+    fn voxels_in_view(&self, view: &View) -> Vec<usize> {
+        let Some(tree) = &self.tree else { return Vec::new() };
+        let radius = self.voxel_m as f64 * 3f64.sqrt() / 2.0;
+        let frustum = Frustum::new(view);
+        let eye = view.pose.translation.vector;
+        let reach = (view.range_m + radius) as f32;
+        let found = tree
+            .query(&[eye.x as f32, eye.y as f32, eye.z as f32])
+            .within::<SquaredEuclidean<f32>>(reach * reach)
+            .unsorted()
+            .execute();
+        let mut in_view: Vec<usize> = found
+            .into_iter()
+            .map(|n| n.item as usize)
+            .filter(|&v| {
+                let c = self.centres[v];
+                frustum.reaches(&Point3::new(c[0] as f64, c[1] as f64, c[2] as f64), radius)
+            })
+            .collect();
+        in_view.sort_unstable();
+        in_view
+    }
+}
+
+/// The view frustum as planes through the camera centre (and the near plane), in the map frame.
+struct Frustum {
+    /// Unit inward normals and offsets: a point p is inside when n·p + d ≥ 0 for all.
+    planes: [(Vector3<f64>, f64); 5],
+}
+
+impl Frustum {
+    fn new(view: &View) -> Self {
+        let k = view.intrinsics;
+        let (w, h) = (k.width as f64, k.height as f64);
+        // Camera-frame inward normals of u ≥ 0, u ≤ w, v ≥ 0, v ≤ h (u = fx·x/z + cx) and z ≥ near.
+        let camera = [
+            Vector3::new(k.fx, 0.0, k.cx),
+            Vector3::new(-k.fx, 0.0, w - k.cx),
+            Vector3::new(0.0, k.fy, k.cy),
+            Vector3::new(0.0, -k.fy, h - k.cy),
+        ];
+        let rotation = view.pose.rotation;
+        let eye = view.pose.translation.vector;
+        let through_eye = |n: Vector3<f64>| {
+            let n = rotation * n.normalize();
+            (n, -n.dot(&eye))
+        };
+        let forward = rotation * Vector3::z();
+        Self {
+            planes: [
+                through_eye(camera[0]),
+                through_eye(camera[1]),
+                through_eye(camera[2]),
+                through_eye(camera[3]),
+                (forward, -forward.dot(&eye) - view.near_m),
+            ],
+        }
+    }
+
+    /// Whether a sphere may have a point inside (true for every sphere that does).
+    fn reaches(&self, centre: &Point3<f64>, radius: f64) -> bool {
+        self.planes.iter().all(|(n, d)| n.dot(&centre.coords) + d >= -radius)
+    }
+}
