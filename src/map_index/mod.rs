@@ -33,10 +33,14 @@ pub use voxels::{PointSlice, View, VoxelGrid};
 pub const NORMAL_NEIGHBOURS: usize = 16;
 
 /// On a map wider than the render range, a correspondence takes the normal of the nearest map
-/// point within this distance, or none (in open space, off every surface). Unbounded, the
-/// search for a point off the surfaces visits every map point around it: its cost would grow with
-/// the map's density.
-pub const NORMAL_SEARCH_RADIUS_M: f32 = 0.25;
+/// point within this many of the map's point spacings, or none (in open space, off every
+/// surface). Unbounded, the search for a point off the surfaces visits every map point around it:
+/// its cost would grow with the map's density. In spacings, not metres, so a sparse map (points
+/// 30 cm apart) searches as far, in points, as a dense one (2 cm).
+pub const NORMAL_SEARCH_SPACINGS: f32 = 8.0;
+
+/// Map points sampled (evenly) to measure the map's point spacing.
+const SPACING_SAMPLES: usize = 1000;
 
 /// How the map is bucketed for culling.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -44,7 +48,7 @@ pub struct IndexSettings {
     /// Side of a culling voxel, metres.
     pub voxel_m: f32,
     /// A map wider than this (bounding-box diagonal) looks up normals within
-    /// [`NORMAL_SEARCH_RADIUS_M`] only.
+    /// [`NORMAL_SEARCH_SPACINGS`] point spacings only.
     pub bounded_search_above_m: f64,
 }
 
@@ -88,7 +92,8 @@ impl MapIndex {
             // A panicking grid build (it cannot, short of a bug) leaves an empty grid.
             (tree, grid.join().unwrap_or_default(), extent)
         });
-        let normal_search_m = (extent_m > settings.bounded_search_above_m).then_some(NORMAL_SEARCH_RADIUS_M);
+        let normal_search_m = (extent_m > settings.bounded_search_above_m)
+            .then(|| NORMAL_SEARCH_SPACINGS * point_spacing(&points, &tree));
         Self { points, tree, normals: LazyNormals::default(), grid, extent_m, normal_search_m }
     }
 
@@ -120,7 +125,8 @@ impl MapIndex {
     }
 
     /// For each query, the normal (arbitrary sign, unit or zero when degenerate) of the map point
-    /// nearest to it (on a map wider than the render range, within [`NORMAL_SEARCH_RADIUS_M`]);
+    /// nearest to it (on a map wider than the render range, within [`NORMAL_SEARCH_SPACINGS`]
+    /// point spacings);
     /// `None` for an empty map or nothing near. Computed on first use and cached.
     pub fn nearest_normals(&self, queries: &[Point3<f64>]) -> Vec<Option<Vector3<f32>>> {
         let nearest_one = |q: &Point3<f64>| match self.normal_search_m {
@@ -194,6 +200,26 @@ impl CulledRender {
         let view = View { pose, intrinsics, range_m: self.range_m, near_m };
         self.index.visible(&view, self.budget)
     }
+}
+
+/// The map's typical point spacing: the median distance from an even sample of its points to
+/// their nearest other point (metres; 0 for fewer than two points).
+fn point_spacing(points: &[Point3<f32>], tree: &PointIndex) -> f32 {
+    let step = (points.len() / SPACING_SAMPLES).max(1);
+    let mut gaps: Vec<f32> = points
+        .iter()
+        .step_by(step)
+        .filter_map(|p| {
+            let second = *tree.nearest(p, 2).get(1)?;
+            Some((points.get(second)? - p).norm())
+        })
+        .filter(|d| d.is_finite())
+        .collect();
+    if gaps.is_empty() {
+        return 0.0;
+    }
+    let mid = gaps.len() / 2;
+    *gaps.select_nth_unstable_by(mid, f32::total_cmp).1
 }
 
 /// Diagonal of the bounding box of the finite points (0 when fewer than two).

@@ -132,6 +132,21 @@ fn on_a_wide_map_normals_are_looked_up_near_the_surfaces_only() {
 }
 
 #[test]
+fn the_bounded_normal_search_scales_with_the_maps_point_spacing() {
+    // The same wide cloud at 3× the size (points 3× further apart): a point 1.5 m off the floor
+    // (0.5 m at the original size) still finds the floor's normal, and open space still none.
+    let sparse: Vec<Point3<f32>> = cloud(5_000).iter().map(|p| Point3::from(p.coords * 3.0)).collect();
+    let index = MapIndex::new(sparse);
+    let on_floor = Point3::new(60.0, 45.0, 0.0);
+    let floor_point = index.points()[index.nearest(&on_floor.cast()).unwrap()];
+    let near = floor_point.cast::<f64>() + Vector3::new(0.0, 0.0, 1.5);
+    let far_above = Point3::new(60.0, 45.0, 120.0);
+    let normals = index.nearest_normals(&[near, far_above]);
+    assert!(normals[0].is_some(), "a point 1.5 m off a sparse floor has its normal");
+    assert!(normals[1].is_none(), "a point far above everything has none");
+}
+
+#[test]
 fn a_map_within_the_render_range_renders_as_before() {
     let small: Vec<_> = cloud(20_000).into_iter().map(|p| Point3::new(p.x / 10.0, p.y / 10.0, p.z)).collect();
     let params = VerifyParams::default();
