@@ -8,6 +8,7 @@ use anyhow::{Context, Result};
 use nalgebra::Isometry3;
 
 use crate::bag::{BagFrames, BagMessages, BagWriter, FrameStream, ReadOptions, TopicMap};
+use crate::camera::CameraModel;
 use crate::eval::{inlier_mask, inlier_ratio, pose_errors, summarize, FrameMetrics, Summary};
 use crate::frame::{Assembled, Correspondence, IncompleteFrame, Stamp};
 use crate::limits::InputLimits;
@@ -25,12 +26,13 @@ pub const STATUS_NAME: &str = "angle_i2p: localization";
 pub struct BagEdge<'a> {
     pub topics: &'a TopicMap,
     pub limits: &'a InputLimits,
+    pub pixels: crate::camera::PixelSpace,
 }
 
 impl<'a> BagEdge<'a> {
     /// The bag edge of resolved parameters.
     pub fn of(params: &'a AppParams) -> Self {
-        Self { topics: &params.topics, limits: &params.limits }
+        Self { topics: &params.topics, limits: &params.limits, pixels: params.camera.pixels }
     }
 }
 
@@ -76,7 +78,7 @@ pub fn replay(
     mut on_frame: impl FnMut(&FrameProgress),
 ) -> Result<ReplayReport> {
     let topics = edge.topics;
-    let mut stream = FrameStream::open(input, topics, edge.limits)?;
+    let mut stream = FrameStream::open(input, topics, edge.limits)?.with_pixel_space(edge.pixels);
     if let Some(map) = stream.map.take() {
         localizer.set_map(&map);
     }
@@ -84,7 +86,7 @@ pub fn replay(
     let mut writer = BagWriter::create(output)?;
     let mut report = ReplayReport { localizations: Vec::new(), incomplete: Vec::new(), issues: Vec::new() };
     while let Some(item) = stream.next_frame()? {
-        let frame = match item {
+        let mut frame = match item {
             Assembled::Complete(f) => f,
             Assembled::Partial(f, r) => {
                 report.incomplete.push(r);
@@ -99,8 +101,9 @@ pub fn replay(
         };
         let mut loc = localizer.process(&frame);
         let registered = registered(&frame, &loc);
+        let lens = frame.lens.take();
         drop(frame);
-        write_localization(&mut writer, topics, &loc)?;
+        write_localization(&mut writer, topics, &loc, lens.as_ref())?;
         let index = report.localizations.len();
         on_frame(&FrameProgress { index, expected: expected.max(index + 1), localization: &loc, registered });
         loc.kept = Vec::new();
@@ -121,9 +124,14 @@ pub fn describe(f: &IncompleteFrame) -> String {
     format!("frame {}: {}{}", f.stamp, parts.join("; "), if f.dropped { " (skipped)" } else { "" })
 }
 
-fn write_localization(w: &mut BagWriter, topics: &TopicMap, loc: &Localization) -> Result<()> {
+fn write_localization(
+    w: &mut BagWriter,
+    topics: &TopicMap,
+    loc: &Localization,
+    lens: Option<&CameraModel>,
+) -> Result<()> {
     let t = loc.stamp;
-    let out = convert::localization_messages(loc);
+    let out = convert::localization_messages(loc, lens);
     if let Some(pose) = &out.pose {
         w.write(&topics.pose, t, pose)?;
     }
@@ -270,7 +278,7 @@ pub fn evaluate_bags(input: &Path, ests: &[std::path::PathBuf], params: &AppPara
     let mut rows: Vec<Vec<FrameMetrics>> = vec![Vec::new(); ests.len()];
     let mut no_pose: Vec<BTreeMap<String, usize>> = vec![BTreeMap::new(); ests.len()];
     let (mut raw_rows, mut without_ground_truth) = (Vec::new(), 0usize);
-    let mut stream = FrameStream::open(input, topics, &params.limits)?;
+    let mut stream = FrameStream::open(input, topics, &params.limits)?.with_pixel_space(params.camera.pixels);
     while let Some(item) = stream.next_frame()? {
         let frame = match item {
             Assembled::Complete(f) | Assembled::Partial(f, _) => f,
@@ -354,7 +362,7 @@ pub fn export_samples(input: &Path, out: &Path, params: &AppParams) -> Result<Ex
     use crate::reject::inputs::{build_inputs, IndexedMap, TensorValues};
     use crate::reject::{FrameGeometry, SpectralRejector};
 
-    let mut stream = FrameStream::open(input, &params.topics, &params.limits)?;
+    let mut stream = FrameStream::open(input, &params.topics, &params.limits)?.with_pixel_space(params.camera.pixels);
     let map = stream.map.take().map(|m| IndexedMap::new(m.points));
     let core = &params.localizer;
     let mut spectral = SpectralRejector::new(core.network.keypoint_spectral(core.spectral.clone()));

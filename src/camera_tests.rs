@@ -102,6 +102,7 @@ fn frame_of(correspondences: Vec<Correspondence>) -> Frame {
         depth_prior: None,
         image: None,
         ground_truth: None,
+        lens: None,
     }
 }
 

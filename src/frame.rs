@@ -3,6 +3,7 @@
 
 use nalgebra::{Isometry3, Point2, Point3};
 
+use crate::camera::CameraModel;
 use crate::geometry::{DepthImage, Intrinsics};
 
 mod assembler;
@@ -48,6 +49,10 @@ pub struct Frame {
     /// The camera image when the source carries one.
     pub image: Option<CameraImage>,
     pub ground_truth: Option<GroundTruth>,
+    /// The lens model the pixels were undistorted with, when they were (raw pixels of a
+    /// distorting camera): outputs map kept pixels back through it, so a matcher gets its own
+    /// pixels back.
+    pub lens: Option<CameraModel>,
 }
 
 /// A frame's camera image.
@@ -127,9 +132,11 @@ impl PartKind {
 /// One decoded message that belongs to the frame at `stamp`.
 #[derive(Clone, Debug)]
 pub enum FramePart {
+    /// The camera as CameraInfo describes it (K, D, P); the assembler reduces it to the core's
+    /// pinhole camera ([`crate::camera`]).
     CameraInfo {
         stamp: Stamp,
-        intrinsics: Intrinsics,
+        camera: CameraModel,
     },
     /// `camera_frame_id` is the correspondences' `header.frame_id`.
     Correspondences {
@@ -160,7 +167,7 @@ impl FramePart {
     /// The part with its stamp replaced (stamp-tolerant matching joins it to a nearby frame).
     pub fn with_stamp(self, s: Stamp) -> FramePart {
         match self {
-            FramePart::CameraInfo { intrinsics, .. } => FramePart::CameraInfo { stamp: s, intrinsics },
+            FramePart::CameraInfo { camera, .. } => FramePart::CameraInfo { stamp: s, camera },
             FramePart::Correspondences { camera_frame_id, map_frame_id, correspondences, .. } => {
                 FramePart::Correspondences { stamp: s, camera_frame_id, map_frame_id, correspondences }
             }

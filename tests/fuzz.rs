@@ -215,7 +215,14 @@ fn part(kind: PartKind, stamp: i64) -> FramePart {
     match kind {
         PartKind::CameraInfo => FramePart::CameraInfo {
             stamp,
-            intrinsics: Intrinsics { fx: 1.0, fy: 1.0, cx: 0.0, cy: 0.0, width: 1, height: 1 },
+            camera: angle_i2p::camera::CameraModel::pinhole(Intrinsics {
+                fx: 1.0,
+                fy: 1.0,
+                cx: 0.0,
+                cy: 0.0,
+                width: 1,
+                height: 1,
+            }),
         },
         PartKind::Correspondences => FramePart::Correspondences {
             stamp,
@@ -358,6 +365,7 @@ fn frame() -> impl Strategy<Value = angle_i2p::frame::Frame> {
             depth_prior,
             image: None,
             ground_truth: None,
+            lens: None,
         },
     )
 }

@@ -92,6 +92,12 @@ pub struct FrameStream {
 
 impl FrameStream {
     /// Checks the bag and reads its map (first pass); frames come from [`Self::next_frame`].
+    /// Reads the correspondences' pixels (and the prior) as `space` ([`crate::camera`]).
+    pub fn with_pixel_space(mut self, space: crate::camera::PixelSpace) -> Self {
+        self.assembler = std::mem::replace(&mut self.assembler, FrameAssembler::new(&[])).with_pixel_space(space);
+        self
+    }
+
     pub fn open(path: impl AsRef<Path>, topics: &TopicMap, limits: &InputLimits) -> Result<Self, BagError> {
         let path = path.as_ref();
         let options = ReadOptions { max_record_bytes: limits.max_record_bytes, expected_types: expected_types(topics) };

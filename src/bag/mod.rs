@@ -223,6 +223,7 @@ mod tests {
                 pose: Some(Isometry3::new(Vector3::new(1.0, 2.0, 3.0), Vector3::new(0.0, 0.5, 0.0))),
                 depth: Some(DepthImage::new(4, 2, vec![1.0, 0.0, 2.5, 0.5, 0.0, 0.0, 0.0, 1.234])),
             }),
+            lens: None,
         }
     }
 

@@ -13,7 +13,8 @@ use nalgebra::Isometry3;
 
 use super::recent::RecentStamps;
 use super::{Assembled, CameraImage, Correspondence, Frame, FramePart, GroundTruth, IncompleteFrame, PartKind, Stamp};
-use crate::geometry::{DepthImage, Intrinsics};
+use crate::camera::{CameraModel, PinholeRectifier, PixelSpace};
+use crate::geometry::DepthImage;
 
 /// A reading of the caller's monotonic clock, in nanoseconds (any origin, never decreasing).
 pub type MonotonicNs = i64;
@@ -31,7 +32,7 @@ struct Pending {
     first_arrival: MonotonicNs,
     /// Parts that arrived or failed (bit per [`PartKind`]).
     resolved: u8,
-    intrinsics: Option<Intrinsics>,
+    camera: Option<CameraModel>,
     correspondences: Option<CorrespondencesPart>,
     depth_prior: Option<DepthImage>,
     image: Option<CameraImage>,
@@ -45,7 +46,7 @@ impl Pending {
         Self {
             first_arrival: now,
             resolved: 0,
-            intrinsics: None,
+            camera: None,
             correspondences: None,
             depth_prior: None,
             image: None,
@@ -58,7 +59,7 @@ impl Pending {
     /// Stores `part`; true when one of its kind was already there (the last is kept).
     fn store(&mut self, part: FramePart) -> bool {
         match part {
-            FramePart::CameraInfo { intrinsics, .. } => self.intrinsics.replace(intrinsics).is_some(),
+            FramePart::CameraInfo { camera, .. } => self.camera.replace(camera).is_some(),
             FramePart::Correspondences { camera_frame_id, map_frame_id, correspondences, .. } => {
                 let part = CorrespondencesPart { camera_frame_id, map_frame_id, correspondences };
                 self.correspondences.replace(part).is_some()
@@ -72,7 +73,7 @@ impl Pending {
 
     fn has(&self, kind: PartKind) -> bool {
         match kind {
-            PartKind::CameraInfo => self.intrinsics.is_some(),
+            PartKind::CameraInfo => self.camera.is_some(),
             PartKind::Correspondences => self.correspondences.is_some(),
             PartKind::DepthPrior => self.depth_prior.is_some(),
             PartKind::Image => self.image.is_some(),
@@ -104,6 +105,8 @@ pub struct FrameAssembler {
     handed_out: Option<RecentStamps>,
     /// Frames opened so far (stamps that started waiting; not late parts).
     opened: u64,
+    /// Reduces each frame's camera to the core's pinhole one (see [`crate::camera`]).
+    rectifier: PinholeRectifier,
 }
 
 impl FrameAssembler {
@@ -118,6 +121,7 @@ impl FrameAssembler {
             repeats: BTreeMap::new(),
             handed_out: None,
             opened: 0,
+            rectifier: PinholeRectifier::new(PixelSpace::default()),
         }
     }
 
@@ -134,6 +138,13 @@ impl FrameAssembler {
     /// same stamps again as new frames.
     pub fn with_repeat_window(mut self, window_ns: i64) -> Self {
         self.handed_out = Some(RecentStamps::new(Some(window_ns.max(0))));
+        self
+    }
+
+    /// Which pixel space the correspondences and the prior are in (raw pixels of a distorting
+    /// lens are undistorted, rectified ones take P's intrinsics): [`crate::camera`].
+    pub fn with_pixel_space(mut self, space: PixelSpace) -> Self {
+        self.rectifier = PinholeRectifier::new(space);
         self
     }
 
@@ -300,11 +311,15 @@ impl FrameAssembler {
         Some(self.hand_out(stamp, p, now))
     }
 
-    fn assemble(&self, stamp: Stamp, mut p: Pending) -> Assembled {
+    fn assemble(&mut self, stamp: Stamp, mut p: Pending) -> Assembled {
         let missing: Vec<&'static str> =
             PartKind::ALL.iter().filter(|k| self.expected & k.bit() != 0 && !p.has(**k)).map(|k| k.name()).collect();
-        let errors = std::mem::take(&mut p.errors);
+        let mut errors = std::mem::take(&mut p.errors);
         let has_correspondences = p.resolved(PartKind::Correspondences);
+        let frame = match frame_of(stamp, p) {
+            Some((frame, camera)) => self.to_pinhole(frame, &camera, &mut errors),
+            None => None,
+        };
         let report = |dropped| IncompleteFrame {
             stamp,
             missing: missing.clone(),
@@ -320,7 +335,7 @@ impl FrameAssembler {
             return Assembled::Dropped(r);
         }
         let clean = missing.is_empty() && errors.is_empty();
-        match frame_of(stamp, p) {
+        match frame {
             None => Assembled::Dropped(report(true)),
             Some(frame) if clean => Assembled::Complete(frame),
             Some(frame) => Assembled::Partial(frame, report(false)),
@@ -328,21 +343,48 @@ impl FrameAssembler {
     }
 }
 
-/// The frame of the parts at `stamp`; `None` without camera info or correspondences.
-fn frame_of(stamp: Stamp, p: Pending) -> Option<Frame> {
-    let (intrinsics, corr) = (p.intrinsics?, p.correspondences?);
+impl FrameAssembler {
+    /// `frame` in the core's pinhole camera (see [`crate::camera`]); `None` for a camera that
+    /// cannot be used, with the reason in `errors`, as are correspondences the lens model could
+    /// not undistort.
+    fn to_pinhole(&mut self, mut frame: Frame, camera: &CameraModel, errors: &mut Vec<String>) -> Option<Frame> {
+        match self.rectifier.apply(camera, &mut frame) {
+            Ok(report) => {
+                if report.dropped > 0 {
+                    errors.push(format!(
+                        "{} correspondences outside the lens model's valid region left out",
+                        report.dropped
+                    ));
+                }
+                frame.lens = report.remapped.then(|| camera.clone());
+                Some(frame)
+            }
+            Err(e) => {
+                errors.push(format!("camera_info: {e}"));
+                None
+            }
+        }
+    }
+}
+
+/// The frame of the parts at `stamp` (in the raw camera's intrinsics) and its camera; `None`
+/// without camera info or correspondences.
+fn frame_of(stamp: Stamp, p: Pending) -> Option<(Frame, CameraModel)> {
+    let (camera, corr) = (p.camera?, p.correspondences?);
     let ground_truth =
         (p.gt_pose.is_some() || p.gt_depth.is_some()).then_some(GroundTruth { pose: p.gt_pose, depth: p.gt_depth });
-    Some(Frame {
+    let frame = Frame {
         stamp,
         camera_frame_id: corr.camera_frame_id,
         map_frame_id: corr.map_frame_id,
-        intrinsics,
+        intrinsics: camera.raw,
         correspondences: corr.correspondences,
         depth_prior: p.depth_prior,
         image: p.image,
         ground_truth,
-    })
+        lens: None,
+    };
+    Some((frame, camera))
 }
 
 /// The report of parts at a stamp already handed out: late parts, or a repeated stamp.

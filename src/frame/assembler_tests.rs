@@ -4,8 +4,9 @@
 use super::*;
 
 fn info(stamp: Stamp) -> FramePart {
-    let intrinsics = Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
-    FramePart::CameraInfo { stamp, intrinsics }
+    let intrinsics =
+        crate::geometry::Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
+    FramePart::CameraInfo { stamp, camera: crate::camera::CameraModel::pinhole(intrinsics) }
 }
 
 fn corr(stamp: Stamp) -> FramePart {

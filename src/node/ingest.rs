@@ -59,6 +59,8 @@ pub struct IngestRules {
     pub require_map: bool,
     /// The input limits applied to each assembled frame (`limits.*`).
     pub limits: InputLimits,
+    /// The camera's pixel space (`camera.pixels`).
+    pub pixels: crate::camera::PixelSpace,
 }
 
 /// Joins parts into frames, times out incomplete ones, holds the map, feeds the queue.
@@ -82,7 +84,8 @@ impl Ingest {
         let assembler = FrameAssembler::new(&rules.expected)
             .with_stamp_tolerance(rules.stamp_tolerance_ns)
             .with_arrival_timeout(timeout_ns)
-            .with_repeat_window(timeout_ns);
+            .with_repeat_window(timeout_ns)
+            .with_pixel_space(rules.pixels);
         Self {
             assembler,
             opened_counted: 0,

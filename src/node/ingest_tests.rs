@@ -12,13 +12,14 @@ fn ingest(tolerance_ns: i64, timeout_ms: u64, require_map: bool) -> Ingest {
         frame_timeout: Duration::from_millis(timeout_ms),
         require_map,
         limits: InputLimits::default(),
+        pixels: Default::default(),
     };
     Ingest::new(rules, Arc::new(DropOldestQueue::new(2)), Arc::new(Mutex::new(Stats::default())))
 }
 
 fn info(stamp: Stamp) -> Input {
     let intrinsics = Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
-    Input::Part(FramePart::CameraInfo { stamp, intrinsics })
+    Input::Part(FramePart::CameraInfo { stamp, camera: crate::camera::CameraModel::pinhole(intrinsics) })
 }
 
 fn corr(stamp: Stamp) -> Input {
@@ -118,6 +119,7 @@ fn what_the_limits_change_is_counted_by_name() {
         frame_timeout: Duration::from_millis(100),
         require_map: false,
         limits,
+        pixels: Default::default(),
     };
     let mut i = Ingest::new(rules, Arc::new(DropOldestQueue::new(2)), Arc::new(Mutex::new(Stats::default())));
     let c = |score: f32| crate::frame::Correspondence {

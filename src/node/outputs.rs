@@ -8,7 +8,6 @@ use std::sync::{Arc, Mutex};
 use anyhow::{anyhow, Result};
 use ros2_client::Publisher;
 
-use crate::params::NodeParams;
 use super::dds;
 use super::diagnostics::Stats;
 use super::image as img;
@@ -18,6 +17,7 @@ use super::topics::Topics;
 use crate::bag::BagWriter;
 use crate::frame::Frame;
 use crate::msgs::{self, convert, RosMessage};
+use crate::params::NodeParams;
 use crate::pipeline::Localization;
 
 /// Writes what the node publishes to a bag (`--record`); write errors are logged and counted,
@@ -109,7 +109,7 @@ impl Outputs {
     /// Publishes one frame's results as `replay` writes them (the same conversions).
     pub async fn publish(&self, loc: &Localization, frame: &Frame) {
         let topics = &self.topics;
-        let out = convert::localization_messages(loc);
+        let out = convert::localization_messages(loc, frame.lens.as_ref());
         if let Some(pose) = out.pose {
             self.send(&self.pose, &topics.pose, pose).await;
         }

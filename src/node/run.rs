@@ -37,6 +37,7 @@ struct Setup {
     np: NodeParams,
     params: LocalizerParams,
     limits: InputLimits,
+    pixels: crate::camera::PixelSpace,
     /// A frame waits for a depth prior (`expect_depth_prior`, and a method that uses one).
     wants_prior: bool,
     tf: TfSetup,
@@ -52,6 +53,7 @@ impl Setup {
         let np: NodeParams = resolved.node.clone();
         let params = resolved.localizer.clone();
         let limits = resolved.limits.clone();
+        let pixels = resolved.camera.pixels;
         let recorder = match record {
             Some(path) => Recorder::create(path)?,
             None => Recorder::default(),
@@ -75,6 +77,7 @@ impl Setup {
             np,
             params,
             limits,
+            pixels,
             wants_prior,
             tf,
             recorder,
@@ -175,6 +178,7 @@ pub async fn run_node(names: Names, resolved: AppParams, record: Option<PathBuf>
         frame_timeout: Duration::from_millis(s.np.frame_timeout_ms),
         require_map: s.np.require_map,
         limits: s.limits.clone(),
+        pixels: s.pixels,
     };
     let mut ingest = Ingest::new(rules, queue.clone(), s.stats.clone());
     let clock = Instant::now();

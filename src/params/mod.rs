@@ -13,8 +13,18 @@ pub mod validate;
 
 use serde::{Deserialize, Serialize};
 
+use crate::camera::PixelSpace;
 use crate::limits::InputLimits;
 pub use crate::pipeline::LocalizerParams;
+
+/// How the edges read the camera ([`crate::camera`]).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CameraParams {
+    /// `raw`: pixels (and the prior) of the image CameraInfo describes, undistorted with its K
+    /// and D; `rectified`: pixels of the rectified image (`image_proc`), in P's camera.
+    pub pixels: PixelSpace,
+}
 
 pub use node::{MapQos, NodeParams};
 pub use resolve::{resolve, resolve_cli, Layers, ResolveError};
@@ -33,6 +43,8 @@ pub struct AppParams {
     pub topics: TopicMap,
     /// The live node: queue, frame matching, TF, diagnostics, debug image.
     pub node: NodeParams,
+    /// The camera's pixel space: raw (undistorted with CameraInfo's D) or rectified (P).
+    pub camera: CameraParams,
     /// How much one input may make us hold or compute ([`crate::limits`]), enforced where
     /// messages come in (bag reading, the node).
     pub limits: InputLimits,

@@ -303,6 +303,7 @@ mod tests {
             depth_prior: Some(DepthImage::new(w, h, data)),
             image: None,
             ground_truth: None,
+            lens: None,
         };
         (frame, truth)
     }

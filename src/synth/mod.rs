@@ -329,6 +329,7 @@ impl FrameContext<'_> {
             depth_prior: Some(prior.image),
             image,
             ground_truth: Some(GroundTruth { pose: Some(pose), depth: Some(render.depth) }),
+            lens: None,
         };
         let mask = inlier_mask(&frame, c.inlier_threshold_m);
         let inliers = mask.iter().filter(|&&m| m).count();

@@ -2,6 +2,8 @@
 //! publishes, built in one place so the two edges cannot drift apart.
 
 use super::{correspondences_msg, pose_stamped, pose_with_covariance_stamped};
+use crate::camera::CameraModel;
+use crate::frame::Correspondence;
 use crate::msgs::{Correspondences, PoseStamped, PoseWithCovarianceStamped};
 use crate::pipeline::Localization;
 
@@ -17,7 +19,10 @@ pub struct LocalizationMessages {
 }
 
 /// The messages that report `loc`.
-pub fn localization_messages(loc: &Localization) -> LocalizationMessages {
+///
+/// `lens`: the frame's pixels were undistorted with it ([`Frame::lens`](crate::frame::Frame::lens));
+/// the kept correspondences are then published back in the input's raw pixels.
+pub fn localization_messages(loc: &Localization, lens: Option<&CameraModel>) -> LocalizationMessages {
     let (t, map) = (loc.stamp, loc.map_frame_id.as_str());
     let pose = loc.pose.as_ref().map(|pose| pose_stamped(t, map, pose));
     let pose_with_covariance = match (&loc.pose, &loc.covariance) {
@@ -27,7 +32,14 @@ pub fn localization_messages(loc: &Localization) -> LocalizationMessages {
     LocalizationMessages {
         pose,
         pose_with_covariance,
-        kept: correspondences_msg(t, &loc.camera_frame_id, map, &loc.kept),
+        kept: match lens {
+            None => correspondences_msg(t, &loc.camera_frame_id, map, &loc.kept),
+            Some(lens) => {
+                let raw: Vec<Correspondence> =
+                    loc.kept.iter().map(|c| Correspondence { pixel: lens.distort_pixel(&c.pixel), ..*c }).collect();
+                correspondences_msg(t, &loc.camera_frame_id, map, &raw)
+            }
+        },
     }
 }
 
@@ -51,6 +63,7 @@ mod tests {
             depth_prior: None,
             image: None,
             ground_truth: None,
+            lens: None,
         };
         Localizer::new(params).expect("a ransac localizer").process(&frame)
     }
@@ -59,7 +72,7 @@ mod tests {
     fn a_frame_without_pose_still_reports_its_kept_set() {
         let loc = localization();
         assert!(loc.pose.is_none());
-        let out = localization_messages(&loc);
+        let out = localization_messages(&loc, None);
         assert!(out.pose.is_none() && out.pose_with_covariance.is_none());
         assert_eq!((super::super::stamp(&out.kept.header), out.kept.map_frame_id.as_str()), (42, "map"));
     }
@@ -70,7 +83,7 @@ mod tests {
         let pose = Isometry3::new(Vector3::new(1.0, 2.0, 3.0), Vector3::new(0.0, 0.3, 0.0));
         loc.pose = Some(pose);
         loc.kept = vec![Correspondence { pixel: Point2::new(1.0, 2.0), point: Point3::new(0.0, 0.0, 1.0), score: 0.5 }];
-        let out = localization_messages(&loc);
+        let out = localization_messages(&loc, None);
         let msg = out.pose.expect("pose");
         assert_eq!((msg.header.frame_id.as_str(), super::super::stamp(&msg.header)), ("map", 42));
         let back = super::super::isometry_from_pose(&msg.pose).expect("pose");
@@ -78,7 +91,7 @@ mod tests {
         assert!(out.pose_with_covariance.is_none(), "no covariance, no PoseWithCovarianceStamped");
         assert_eq!(out.kept.correspondences.len(), 1);
         loc.covariance = Some(Matrix6::identity() * 0.25);
-        let with_cov = localization_messages(&loc).pose_with_covariance.expect("pose with covariance");
+        let with_cov = localization_messages(&loc, None).pose_with_covariance.expect("pose with covariance");
         assert_eq!(with_cov.pose.covariance[0], 0.25);
         assert_eq!(with_cov.pose.covariance[7], 0.25);
     }

@@ -8,6 +8,7 @@ use super::{
     compressed_image, correspondences_from_msg, depth_from_image, encoded_image, intrinsics_from_camera_info,
     isometry_from_pose, map_cloud_from_point_cloud, stamp,
 };
+use crate::camera::{CameraModel, Distortion};
 use crate::frame::{CameraImage, EncodedImage, FramePart, MapCloud, Stamp};
 use crate::limits::InputLimits;
 use crate::msgs::{CameraInfo, CompressedImage, Correspondences, Image, MsgError, PointCloud2, PoseStamped};
@@ -20,7 +21,10 @@ fn check_side(what: &'static str, width: u32, height: u32, limits: &InputLimits)
 /// A `sensor_msgs/CameraInfo` → the frame's intrinsics.
 pub fn camera_info_part(msg: &CameraInfo, limits: &InputLimits) -> Result<FramePart, MsgError> {
     check_side("CameraInfo", msg.width, msg.height, limits)?;
-    Ok(FramePart::CameraInfo { stamp: stamp(&msg.header), intrinsics: intrinsics_from_camera_info(msg)? })
+    let raw = intrinsics_from_camera_info(msg)?;
+    let distortion = Distortion::from_ros(&msg.distortion_model, &msg.d)
+        .map_err(|e| MsgError::Invalid { what: "CameraInfo", reason: e.to_string() })?;
+    Ok(FramePart::CameraInfo { stamp: stamp(&msg.header), camera: CameraModel { raw, distortion, projection: msg.p } })
 }
 
 /// An `angle_i2p_msgs/Correspondences` → the frame's putative matches (its `header.frame_id`
