@@ -912,11 +912,13 @@ fn inner_raw_image_and_odom_tf() {
     };
     let odom_base = iso([1.0, 2.0, 0.0], [0.0, 0.0, 1.0], 0.4);
     let base_cam = iso([0.1, 0.0, 0.5], [1.0, -1.0, 0.2], -1.2);
-    let tf_of = |parent: &str, child: &str, t: &nalgebra::Isometry3<f64>| {
+    let s2 = s1 + 1_000_000_000;
+    // The chain is looked up at the image's stamp: samples at s1 and s2 cover it.
+    let tf_of = |stamp: i64, parent: &str, child: &str, t: &nalgebra::Isometry3<f64>| {
         let p = convert::pose_from_isometry(t);
         msgs::TFMessage {
             transforms: vec![msgs::TransformStamped {
-                header: msgs::Header::new(s1, parent),
+                header: msgs::Header::new(stamp, parent),
                 child_frame_id: child.into(),
                 transform: msgs::Transform {
                     translation: msgs::Vector3 { x: p.position.x, y: p.position.y, z: p.position.z },
@@ -925,10 +927,11 @@ fn inner_raw_image_and_odom_tf() {
             }],
         }
     };
-    tf_pub.publish(tf_of("odom", "base_link", &odom_base)).expect("tf");
-    tf_pub.publish(tf_of("base_link", cam, &base_cam)).expect("tf");
+    for stamp in [s1, s2] {
+        tf_pub.publish(tf_of(stamp, "odom", "base_link", &odom_base)).expect("tf");
+        tf_pub.publish(tf_of(stamp, "base_link", cam, &base_cam)).expect("tf");
+    }
     std::thread::sleep(Duration::from_millis(500));
-    let s2 = s1 + 1_000_000_000;
     publish_frame(s2);
     wait_debug(s2);
     let end = Instant::now() + Duration::from_secs(20);
@@ -942,7 +945,8 @@ fn inner_raw_image_and_odom_tf() {
         std::thread::sleep(Duration::from_millis(20));
     };
     assert_eq!(ts.header.frame_id, good.map_frame_id);
-    assert_eq!(convert::stamp(&ts.header), s2);
+    // Future-dated by node.transform_tolerance_s (0.1 s), as REP 105 localizers do.
+    assert_eq!(convert::stamp(&ts.header), s2 + 100_000_000);
     let want = loc.pose.expect("pose") * (odom_base * base_cam).inverse();
     let tr = ts.transform;
     let r = tr.rotation;

@@ -12,7 +12,8 @@ use super::dds;
 use super::diagnostics::Stats;
 use super::image as img;
 use super::log::{lock, now_ns, warn};
-use super::tf::{self, TfBuffer};
+use super::tf;
+use super::tf_buffer::TfHistory;
 use super::topics::Topics;
 use crate::bag::BagWriter;
 use crate::frame::Frame;
@@ -59,7 +60,9 @@ pub struct Outputs {
     kept: Publisher<msgs::Correspondences>,
     tf: Option<Publisher<msgs::TFMessage>>,
     /// With `node.odom_frame` set: that frame and the transforms heard on /tf.
-    odom: Option<(String, Arc<Mutex<TfBuffer>>)>,
+    odom: Option<(String, Arc<Mutex<TfHistory>>)>,
+    /// How far `map → odom` is future-dated, ns.
+    tolerance_ns: i64,
     debug: Option<Publisher<msgs::Image>>,
     recorder: Recorder,
     pub stats: Arc<Mutex<Stats>>,
@@ -68,7 +71,9 @@ pub struct Outputs {
 /// Where TF goes: `map → camera`, or with an odom frame `map → odom` from the transforms heard.
 pub struct TfSetup {
     pub odom_frame: String,
-    pub buffer: Option<Arc<Mutex<TfBuffer>>>,
+    pub buffer: Option<Arc<Mutex<TfHistory>>>,
+    /// `node.transform_tolerance_s` in ns.
+    pub tolerance_ns: i64,
 }
 
 impl Outputs {
@@ -91,6 +96,7 @@ impl Outputs {
             kept: dds::publisher(node, &topics.output_correspondences, &out_qos)?,
             tf,
             odom: tf_setup.buffer.clone().map(|b| (tf_setup.odom_frame.clone(), b)),
+            tolerance_ns: tf_setup.tolerance_ns,
             debug,
             topics: topics.clone(),
             recorder,
@@ -142,14 +148,16 @@ impl Outputs {
         let Some((odom, buffer)) = &self.odom else {
             return Ok(tf::tf_message(loc.stamp, &loc.map_frame_id, &loc.camera_frame_id, pose));
         };
-        let odom_camera = lock(buffer).lookup(odom, &loc.camera_frame_id);
-        let odom_camera = odom_camera.ok_or_else(|| {
+        let odom_camera = lock(buffer).lookup(odom, &loc.camera_frame_id, loc.stamp);
+        let odom_camera = odom_camera.map_err(|e| {
             format!(
-                "frame {}: no transform {odom} → {} on {} yet; no TF published",
-                loc.stamp, loc.camera_frame_id, self.topics.tf
+                "frame {}: no transform {odom} → {} at its stamp ({e}); no TF published",
+                loc.stamp, loc.camera_frame_id
             )
         })?;
-        Ok(tf::tf_message(loc.stamp, &loc.map_frame_id, odom, &tf::map_to_odom(pose, &odom_camera)))
+        // Future-dated (REP 105, as amcl): valid until the next localization is due.
+        let stamp = loc.stamp.saturating_add(self.tolerance_ns);
+        Ok(tf::tf_message(stamp, &loc.map_frame_id, odom, &tf::map_to_odom(pose, &odom_camera)))
     }
 }
 

@@ -12,18 +12,18 @@ use futures::StreamExt;
 use ros2_client::{Node, Subscription};
 use tokio::sync::mpsc;
 
-use crate::params::{MapQos, Names, NodeParams};
 use super::dds;
 use super::image as img;
 use super::ingest::Input;
 use super::initial_pose::{GateWidth, PoseGate};
 use super::log::{info, lock};
 use super::services;
-use super::tf::TfBuffer;
+use super::tf_buffer::TfHistory;
 use super::topics::Topics;
 use crate::frame::{CameraImage, FramePart, PartKind, Stamp};
 use crate::limits::InputLimits;
 use crate::msgs::{self, convert, RosMessage};
+use crate::params::{MapQos, Names, NodeParams};
 
 /// Spawns a reader thread that drains `sub`, converting each message with `convert` (`None`:
 /// nothing for the ingest task). (ros2-client's sample streams are not `Send`, so each reader
@@ -183,11 +183,12 @@ pub fn subscribe_map(r: &mut Readers, topics: &Topics, map_qos: MapQos, limits: 
 }
 
 /// `/tf` and `/tf_static` into `buffer` (for `map → odom`); bad transforms are counted.
-pub fn subscribe_tf(r: &mut Readers, topics: &Topics, buffer: &Arc<Mutex<TfBuffer>>) -> Result<()> {
-    for (topic, qos) in [(&topics.tf, dds::reliable(100)), (&topics.tf_static, dds::latched())] {
+pub fn subscribe_tf(r: &mut Readers, topics: &Topics, buffer: &Arc<Mutex<TfHistory>>) -> Result<()> {
+    for (topic, qos, is_static) in [(&topics.tf, dds::reliable(100), false), (&topics.tf_static, dds::latched(), true)]
+    {
         let buffer = buffer.clone();
         read(r, topic, &qos, move |m: msgs::TFMessage| {
-            let bad = lock(&buffer).update(&m);
+            let bad = lock(&buffer).update(&m, is_static);
             (!bad.is_empty()).then(|| Input::Invalid { reason: "invalid_transform", detail: bad.join("; ") })
         })?;
     }

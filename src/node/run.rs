@@ -22,7 +22,7 @@ use super::outputs::{Outputs, Recorder, TfSetup};
 use super::qos_watch::{InputRequirement, OfferedQos, QosWatch};
 use super::queue::DropOldestQueue;
 use super::readers::{self, Readers};
-use super::tf::TfBuffer;
+use super::tf_buffer::TfHistory;
 use super::topics::Topics;
 use crate::frame::{MonotonicNs, PartKind, Stamp};
 use crate::limits::InputLimits;
@@ -69,8 +69,10 @@ impl Setup {
         initial.health = health;
         let stats = Arc::new(Mutex::new(initial));
         let odom_frame = np.odom_frame.trim().trim_start_matches('/').to_string();
-        let buffer = (np.publish_tf && !odom_frame.is_empty()).then(|| Arc::new(Mutex::new(TfBuffer::default())));
-        let tf = TfSetup { odom_frame, buffer };
+        let tolerance_ns = (np.transform_tolerance_s * 1e9).round().min(i64::MAX as f64) as i64;
+        let buffer = (np.publish_tf && !odom_frame.is_empty())
+            .then(|| Arc::new(Mutex::new(TfHistory::with_slack(tolerance_ns))));
+        let tf = TfSetup { odom_frame, buffer, tolerance_ns };
         Ok(Self {
             names,
             topics,

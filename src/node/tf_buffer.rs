@@ -45,12 +45,19 @@ struct Link {
 impl Link {
     /// parent-from-child at `stamp`: the static transform, the sample at it, or the two samples
     /// around it interpolated (translation linearly, rotation by slerp).
-    fn at(&self, child: &str, stamp: Stamp) -> Result<Isometry3<f64>, TfLookupError> {
+    /// Within `slack_ns` before the first or after the last sample, that sample.
+    fn at(&self, child: &str, stamp: Stamp, slack_ns: i64) -> Result<Isometry3<f64>, TfLookupError> {
         let (Some(first), Some(last)) = (self.samples.front(), self.samples.back()) else {
             return Err(TfLookupError::UnknownFrame { frame: child.to_string() });
         };
         if self.is_static {
             return Ok(last.1);
+        }
+        if stamp > last.0 && stamp - last.0 <= slack_ns {
+            return Ok(last.1);
+        }
+        if stamp < first.0 && first.0 - stamp <= slack_ns {
+            return Ok(first.1);
         }
         if stamp < first.0 || stamp > last.0 {
             return Err(TfLookupError::Extrapolation {
@@ -102,11 +109,19 @@ fn frame_name(id: &str) -> &str {
 #[derive(Debug, Default)]
 pub struct TfHistory {
     links: HashMap<String, Link>,
+    /// A lookup this far beyond a frame's newest (or before its oldest) sample takes that sample.
+    slack_ns: i64,
 }
 
 impl TfHistory {
     /// History kept per dynamic frame, as tf2's default cache time.
     pub const CACHE_NS: i64 = 10_000_000_000;
+
+    /// A buffer whose lookups take a frame's newest (oldest) sample for a stamp at most `slack_ns`
+    /// after (before) it, as a transform tolerance allows.
+    pub fn with_slack(slack_ns: i64) -> Self {
+        Self { links: HashMap::new(), slack_ns: slack_ns.max(0) }
+    }
 
     /// Takes every valid transform of `msg` (`is_static` for `/tf_static`); returns why the
     /// others were skipped.
@@ -193,7 +208,7 @@ impl TfHistory {
         while current != ancestor {
             let link =
                 self.links.get(current).ok_or_else(|| TfLookupError::UnknownFrame { frame: current.to_string() })?;
-            ancestor_from_frame = link.at(current, stamp)? * ancestor_from_frame;
+            ancestor_from_frame = link.at(current, stamp, self.slack_ns)? * ancestor_from_frame;
             current = link.parent.as_str();
         }
         Ok(ancestor_from_frame)

@@ -114,3 +114,12 @@ fn a_loop_in_the_tree_ends_the_walk() {
     tf.update(&tf_message(0, "x", "y", &Isometry3::identity()), true);
     assert!(tf.lookup("a", "y", 0).is_err());
 }
+
+#[test]
+fn a_slack_takes_the_newest_sample_a_little_after_it() {
+    let mut tf = TfHistory::with_slack(S / 10);
+    tf.update(&tf_message(S, "odom", "base_link", &iso([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0)), false);
+    let got = tf.lookup("odom", "base_link", S + S / 20).unwrap();
+    assert!(close(&got, &iso([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0)));
+    assert!(matches!(tf.lookup("odom", "base_link", S + S / 5), Err(TfLookupError::Extrapolation { .. })));
+}

@@ -19,10 +19,15 @@ pub struct NodeParams {
     pub stamp_tolerance_ns: i64,
     /// Broadcast `map → <camera frame>` on `/tf` (or `map → odom_frame`, see there).
     pub publish_tf: bool,
-    /// When set, broadcast `map → odom_frame` = (map→camera) · (odom→camera)⁻¹ instead, with
-    /// `odom_frame → <camera frame>` (direct, or through one frame) heard on `tf_topic` /
-    /// `tf_static_topic`; a frame without it publishes no TF (counted). Empty: off.
+    /// When set, broadcast `map → odom_frame` = (map→camera) · (odom→camera)⁻¹ instead (REP 105),
+    /// with `odom_frame → <camera frame>` looked up at the image's stamp through any chain of
+    /// frames heard on `tf_topic` / `tf_static_topic` (interpolated between samples); a frame
+    /// without it publishes no TF (counted). Empty: off.
     pub odom_frame: String,
+    /// `map → odom` is stamped this far after the image (future-dated, as nav2's amcl does, so
+    /// consumers can transform data up to then), and an odom chain may be this much older or newer
+    /// than the image and still be used, seconds.
+    pub transform_tolerance_s: f64,
     /// Drop frames (counted, reason `no_map`) until a map has arrived.
     pub require_map: bool,
     /// Wait for the depth prior before localizing a frame (only with a rejector that uses it).
@@ -89,6 +94,7 @@ impl Default for NodeParams {
             stamp_tolerance_ns: 0,
             publish_tf: true,
             odom_frame: String::new(),
+            transform_tolerance_s: 0.1,
             require_map: true,
             expect_depth_prior: true,
             diagnostics_period_ms: 1000,

@@ -90,6 +90,7 @@ impl AppParams {
         let n = &self.node;
         real("node.diagnostics_window_s", n.diagnostics_window_s, Range::Positive)?;
         real("node.min_rate_hz", n.min_rate_hz, Range::NonNegative)?;
+        real("node.transform_tolerance_s", n.transform_tolerance_s, Range::NonNegative)?;
         at_least("node.queue_depth", n.queue_depth as u64, 1, "at least 1")
     }
 }
