@@ -103,14 +103,20 @@ fn jitter(rng: &mut StdRng, c: [f64; 3]) -> [f64; 3] {
 
 /// Floor, ceiling and the four walls.
 fn shell(room: &RoomSize, rng: &mut StdRng) -> Vec<Solid> {
-    let (l, w, h, t) = (room.l, room.w, room.h, WALL_THICKNESS);
+    box_shell([room.l, room.w, room.h], WALL_THICKNESS, |albedo| jitter(rng, albedo))
+}
+
+/// Floor, ceiling and the four walls of a box of interior `[l, w, h]` with walls `t` thick;
+/// `colour` turns each surface's base albedo into its own (called floor, ceiling, then the
+/// west, east, south and north walls).
+pub(super) fn box_shell([l, w, h]: [f64; 3], t: f64, mut colour: impl FnMut([f64; 3]) -> [f64; 3]) -> Vec<Solid> {
     vec![
         solid(
             "floor",
             [l / 2.0, w / 2.0, -t / 2.0],
             [l / 2.0 + t, w / 2.0 + t, t / 2.0],
             0.0,
-            jitter(rng, [0.55, 0.45, 0.35]),
+            colour([0.55, 0.45, 0.35]),
             Texture::Tiles,
         ),
         solid(
@@ -118,7 +124,7 @@ fn shell(room: &RoomSize, rng: &mut StdRng) -> Vec<Solid> {
             [l / 2.0, w / 2.0, h + t / 2.0],
             [l / 2.0 + t, w / 2.0 + t, t / 2.0],
             0.0,
-            jitter(rng, [0.85, 0.85, 0.82]),
+            colour([0.85, 0.85, 0.82]),
             Texture::Fabric,
         ),
         solid(
@@ -126,7 +132,7 @@ fn shell(room: &RoomSize, rng: &mut StdRng) -> Vec<Solid> {
             [-t / 2.0, w / 2.0, h / 2.0],
             [t / 2.0, w / 2.0 + t, h / 2.0 + t],
             0.0,
-            jitter(rng, [0.75, 0.70, 0.55]),
+            colour([0.75, 0.70, 0.55]),
             Texture::Wallpaper,
         ),
         solid(
@@ -134,7 +140,7 @@ fn shell(room: &RoomSize, rng: &mut StdRng) -> Vec<Solid> {
             [l + t / 2.0, w / 2.0, h / 2.0],
             [t / 2.0, w / 2.0 + t, h / 2.0 + t],
             0.0,
-            jitter(rng, [0.55, 0.65, 0.75]),
+            colour([0.55, 0.65, 0.75]),
             Texture::Wallpaper,
         ),
         solid(
@@ -142,7 +148,7 @@ fn shell(room: &RoomSize, rng: &mut StdRng) -> Vec<Solid> {
             [l / 2.0, -t / 2.0, h / 2.0],
             [l / 2.0 + t, t / 2.0, h / 2.0 + t],
             0.0,
-            jitter(rng, [0.70, 0.75, 0.60]),
+            colour([0.70, 0.75, 0.60]),
             Texture::Wallpaper,
         ),
         solid(
@@ -150,7 +156,7 @@ fn shell(room: &RoomSize, rng: &mut StdRng) -> Vec<Solid> {
             [l / 2.0, w + t / 2.0, h / 2.0],
             [l / 2.0 + t, t / 2.0, h / 2.0 + t],
             0.0,
-            jitter(rng, [0.78, 0.62, 0.58]),
+            colour([0.78, 0.62, 0.58]),
             Texture::Wallpaper,
         ),
     ]

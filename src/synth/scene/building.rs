@@ -203,59 +203,9 @@ fn placed(s: &Solid, offset: &Vector3<f64>, mirror: bool, w: f64) -> Solid {
     solid(s.name, [c.x + offset.x, y + offset.y, c.z + offset.z], [half.x, half.y, half.z], yaw, s.albedo, s.texture)
 }
 
-/// Floor, ceiling and the four outer walls of a building of interior `size`.
+/// Floor, ceiling and the four outer walls of a building of interior `size` (untinted).
 fn shell(size: &Vector3<f64>) -> Vec<Solid> {
-    let (l, w, h, t) = (size.x, size.y, size.z, WALL);
-    vec![
-        solid(
-            "floor",
-            [l / 2.0, w / 2.0, -t / 2.0],
-            [l / 2.0 + t, w / 2.0 + t, t / 2.0],
-            0.0,
-            [0.5, 0.42, 0.33],
-            Texture::Tiles,
-        ),
-        solid(
-            "ceiling",
-            [l / 2.0, w / 2.0, h + t / 2.0],
-            [l / 2.0 + t, w / 2.0 + t, t / 2.0],
-            0.0,
-            [0.85, 0.85, 0.82],
-            Texture::Fabric,
-        ),
-        solid(
-            "wall_west",
-            [-t / 2.0, w / 2.0, h / 2.0],
-            [t / 2.0, w / 2.0 + t, h / 2.0 + t],
-            0.0,
-            [0.75, 0.7, 0.55],
-            Texture::Wallpaper,
-        ),
-        solid(
-            "wall_east",
-            [l + t / 2.0, w / 2.0, h / 2.0],
-            [t / 2.0, w / 2.0 + t, h / 2.0 + t],
-            0.0,
-            [0.55, 0.65, 0.75],
-            Texture::Wallpaper,
-        ),
-        solid(
-            "wall_south",
-            [l / 2.0, -t / 2.0, h / 2.0],
-            [l / 2.0 + t, t / 2.0, h / 2.0 + t],
-            0.0,
-            [0.7, 0.75, 0.6],
-            Texture::Wallpaper,
-        ),
-        solid(
-            "wall_north",
-            [l / 2.0, w + t / 2.0, h / 2.0],
-            [l / 2.0 + t, t / 2.0, h / 2.0 + t],
-            0.0,
-            [0.78, 0.62, 0.58],
-            Texture::Wallpaper,
-        ),
-    ]
+    super::box_shell([size.x, size.y, size.z], WALL, |albedo| albedo)
 }
 
 /// The inner walls: between neighbouring rooms of a row (a doorway on the row's middle line)
