@@ -1,7 +1,7 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 use super::*;
-use crate::node::tf::tf_message;
+use crate::node::tf::{map_to_odom, tf_message};
 
 fn iso(t: [f64; 3], axis: [f64; 3], angle: f64) -> Isometry3<f64> {
     Isometry3::from_parts(
@@ -122,4 +122,29 @@ fn a_slack_takes_the_newest_sample_a_little_after_it() {
     let got = tf.lookup("odom", "base_link", S + S / 20).unwrap();
     assert!(close(&got, &iso([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0)));
     assert!(matches!(tf.lookup("odom", "base_link", S + S / 5), Err(TfLookupError::Extrapolation { .. })));
+}
+
+#[test]
+fn map_to_odom_composes_with_odom_to_camera_into_map_to_camera() {
+    let map_camera = iso([1.0, -2.0, 0.5], [0.2, 1.0, -0.3], 0.7);
+    let odom_camera = iso([0.3, 0.1, 1.2], [1.0, 0.0, 0.4], -1.1);
+    let map_odom = map_to_odom(&map_camera, &odom_camera);
+    assert!(close(&(map_odom * odom_camera), &map_camera));
+    // A point seen by the camera lands at the same map point either way.
+    let p = nalgebra::Point3::new(0.4, -0.2, 2.0);
+    assert!(((map_odom * (odom_camera * p)) - map_camera * p).norm() < 1e-9);
+    // Identity odom → camera: map → odom is the camera pose itself.
+    assert!(close(&map_to_odom(&map_camera, &Isometry3::identity()), &map_camera));
+}
+
+#[test]
+fn tf_message_carries_the_transform() {
+    let t = iso([1.0, 2.0, 3.0], [0.0, 0.0, 1.0], 0.3);
+    let m = tf_message(42, "map", "odom", &t);
+    let ts = &m.transforms[0];
+    assert_eq!((ts.header.frame_id.as_str(), ts.child_frame_id.as_str()), ("map", "odom"));
+    assert_eq!(ts.header.stamp.to_nanos(), 42);
+    let mut buf = TfHistory::default();
+    buf.update(&m, false);
+    assert!(close(&buf.lookup("map", "odom", 42).unwrap(), &t));
 }
