@@ -7,6 +7,7 @@ use crate::camera::CameraModel;
 use crate::geometry::{DepthImage, Intrinsics};
 
 mod assembler;
+pub mod pinhole;
 mod recent;
 
 pub use assembler::{FrameAssembler, MonotonicNs};

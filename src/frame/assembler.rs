@@ -11,9 +11,10 @@ use std::collections::BTreeMap;
 
 use nalgebra::Isometry3;
 
+use super::pinhole::PinholeRectifier;
 use super::recent::RecentStamps;
 use super::{Assembled, CameraImage, Correspondence, Frame, FramePart, GroundTruth, IncompleteFrame, PartKind, Stamp};
-use crate::camera::{CameraModel, PinholeRectifier, PixelSpace};
+use crate::camera::{CameraModel, PixelSpace};
 use crate::geometry::DepthImage;
 
 /// A reading of the caller's monotonic clock, in nanoseconds (any origin, never decreasing).
