@@ -2,8 +2,6 @@
 //! [`CameraModel`](crate::camera::CameraModel) to a frame's pixels, prior and intrinsics (see
 //! [`crate::camera`]), caching the prior's resampling table per camera.
 
-use nalgebra::Point2;
-
 use super::Frame;
 use crate::camera::{resample_depth, CameraModel, CameraModelError, PixelSpace};
 
@@ -57,16 +55,6 @@ impl PinholeRectifier {
             *prior = resample_depth(prior, self.table_for(model, prior.width, prior.height));
         }
         Ok(RectifyReport { dropped: before - frame.correspondences.len(), remapped: true })
-    }
-
-    /// Maps a pixel of the core camera back into the input's pixel space (for outputs such as
-    /// the kept correspondences, so a matcher gets its own pixels back).
-    pub fn to_input_pixel(&self, model: &CameraModel, pixel: &Point2<f64>) -> Point2<f64> {
-        if model.distorts(self.space) {
-            model.distort_pixel(pixel)
-        } else {
-            *pixel
-        }
     }
 
     fn table_for(&mut self, model: &CameraModel, width: u32, height: u32) -> &[Option<u32>] {

@@ -59,7 +59,8 @@ fn rectifier_undistorts_pixels_and_resamples_the_prior() {
     let prior = frame.depth_prior.as_ref().unwrap();
     for ((c, want), raw) in frame.correspondences.iter().zip(&ideal).zip(&raw_pixels) {
         assert!((c.pixel - want).norm() < 1e-6, "{:?} vs {want:?}", c.pixel);
-        let back = rectifier.to_input_pixel(&model, &c.pixel);
+        // Outputs map kept pixels back through the frame's lens (`Frame::lens`).
+        let back = model.distort_pixel(&c.pixel);
         assert!((back - raw).norm() < 1e-6);
         // The resampled prior at the ideal pixel holds the raw pixel's column (nearest sample).
         let value = prior.at(c.pixel.x.round() as i64, c.pixel.y.round() as i64).unwrap() as f64 - 1.0;
