@@ -147,7 +147,7 @@ fn write_localization(
 /// timings, kept, PnP inliers, failure); `node --record` records the same.
 pub fn localization_diagnostics(loc: &Localization) -> DiagnosticArray {
     let t_ = &loc.timings;
-    let values = [
+    let mut values = vec![
         ("total_ms", format!("{:.4}", t_.total_ms)),
         ("geometry_ms", format!("{:.4}", t_.geometry_ms)),
         ("reject_ms", format!("{:.4}", t_.reject_ms)),
@@ -159,6 +159,9 @@ pub fn localization_diagnostics(loc: &Localization) -> DiagnosticArray {
         ("fast_path", loc.fast_path.to_string()),
         ("prior_quality", loc.prior_quality.map_or_else(|| "unknown".to_string(), |q| format!("{q:.3}"))),
     ];
+    if loc.last_resort {
+        values.push(("last_resort", "true".to_string()));
+    }
     let failure = loc.failure.as_ref().map(|f| f.to_string());
     diagnostics_msg(loc.stamp, loc.method.name(), &values, failure.as_deref())
 }

@@ -238,6 +238,7 @@ fn replay(bag: &Path, out: &Path, params: &AppParams, verbose: bool) -> Result<(
 fn frame_line(loc: &Localization) -> String {
     let fast_path = match (loc.fast_path, &loc.fast_path_check) {
         (true, _) => ", settled by the fast path".to_string(),
+        (false, _) if loc.last_resort => ", pose from the last resort (plain LO-RANSAC)".to_string(),
         (false, Some(c)) => {
             format!(", fast path unsettled (inliers {:.2}, cells {:.2})", c.inlier_ratio, c.cell_share)
         }

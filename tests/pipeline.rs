@@ -244,3 +244,45 @@ fn replay_reports_each_frames_registration_as_it_goes() {
     assert_eq!(seen, 20);
     assert!((100.0 * registered as f64 / seen as f64 - run.evaluations[0].summary.rr).abs() < 1e-9);
 }
+
+/// The cascade's last step (issue #9, "never worse than plain LO-RANSAC"): when a prior that
+/// has nothing to do with the scene misleads rejection and PnP on the kept set finds no
+/// consensus, a plain LO-RANSAC on every correspondence still localizes the frame; with the
+/// step off, the same frames have no pose.
+#[test]
+fn a_frame_the_rejection_guided_path_leaves_without_a_pose_gets_plain_lo_ransacs() {
+    let scene = generate(&SynthConfig { frames: 4, seed: 11, ..SynthConfig::preset("hard").unwrap() });
+    let mut lcg = 0x9E37_79B9_7F4A_7C15u64;
+    let mut noise = move || {
+        lcg = lcg.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        0.5 + 4.0 * (lcg >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let mut frames = scene.frames.clone();
+    for f in &mut frames {
+        let prior = f.depth_prior.as_mut().expect("synth frames carry a prior");
+        prior.data.iter_mut().for_each(|d| *d = noise());
+    }
+    let run = |last_resort_iterations: usize| {
+        let mut params = LocalizerParams { method: Method::Consistency, ..LocalizerParams::default() };
+        params.cascade.last_resort_iterations = last_resort_iterations;
+        params.spectral.keep_ratio = 0.03; // a handful of (misled) picks
+        let mut localizer = Localizer::new(params).expect("a localizer");
+        localizer.set_map(&scene.map);
+        frames.iter().map(|f| localizer.process(f)).collect::<Vec<_>>()
+    };
+    let (with, without) = (run(10_000), run(0));
+    let rescued: Vec<_> = with.iter().zip(&without).filter(|(w, _)| w.last_resort).collect();
+    assert!(
+        !rescued.is_empty(),
+        "no frame needed the last resort: {:?}",
+        without.iter().map(|l| &l.failure).collect::<Vec<_>>()
+    );
+    for (w, wo) in rescued {
+        assert!(matches!(wo.failure, Some(Failure::Pnp(_))), "{:?}", wo.failure);
+        let f = frames.iter().find(|f| f.stamp == w.stamp).expect("the frame");
+        let gt = f.ground_truth.as_ref().and_then(|g| g.pose.as_ref()).expect("gt pose");
+        let pose = w.pose.expect("a pose from the last resort");
+        assert!(pose.rotation.angle_to(&gt.rotation).to_degrees() < 2.0, "{pose:?}");
+        assert!(!w.fast_path && w.failure.is_none());
+    }
+}

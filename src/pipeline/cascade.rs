@@ -27,6 +27,11 @@ pub struct CascadeParams {
     /// size follows the resolution).
     pub min_cell_share: f64,
     pub grid_columns: usize,
+    /// The cascade's last step: a frame whose rejection-guided PnP finds no consensus gets a
+    /// plain LO-RANSAC over every correspondence with this many hypotheses at most (PoseLib's
+    /// budget), its pose chosen on geometry alone, so the method never returns less than plain
+    /// LO-RANSAC would. 0: off.
+    pub last_resort_iterations: usize,
 }
 
 impl Default for CascadeParams {
@@ -38,6 +43,7 @@ impl Default for CascadeParams {
             min_inlier_ratio: 0.3,
             min_cell_share: 0.5,
             grid_columns: 16,
+            last_resort_iterations: 10_000,
         }
     }
 }
@@ -52,11 +58,7 @@ pub struct FastPathCheck {
 impl CascadeParams {
     /// The budgeted RANSAC's solution when it settles the frame, else what it measured.
     pub fn settle(&self, frame: &Frame, pnp: &PnpParams, seed: u64) -> Result<PnpSolution, FastPathCheck> {
-        let matches = Matches {
-            pixels: frame.correspondences.iter().map(|c| c.pixel).collect(),
-            points: frame.correspondences.iter().map(|c| c.point).collect(),
-            scores: frame.correspondences.iter().map(|c| c.score).collect(),
-        };
+        let matches = Matches::of(frame);
         let budget = self.max_iterations.max(1);
         // A short probe first: a frame whose best support after it is under half the bar is
         // hard (a true ratio at the bar is all but certain to show more by then) and goes on
@@ -70,6 +72,26 @@ impl CascadeParams {
             return Err(check);
         }
         self.attempt(frame, &matches, pnp, budget, seed)?
+    }
+
+    /// The last resort for a frame the rejection-guided path left without a pose: plain
+    /// LO-RANSAC on every correspondence (sampled in the matcher's score order), `None` when it
+    /// finds no consensus either or the step is off.
+    pub fn last_resort(&self, frame: &Frame, pnp: &PnpParams, seed: u64) -> Option<PnpSolution> {
+        if self.last_resort_iterations == 0 {
+            return None;
+        }
+        let matches = Matches::of(frame);
+        let params = PnpParams {
+            max_iterations: self.last_resort_iterations,
+            min_iterations: pnp.min_iterations.min(self.last_resort_iterations),
+            coverage_cell_px: 0.0,
+            seed,
+            ..pnp.clone()
+        };
+        let guidance = Guidance { scores: Some(&matches.scores), ..Guidance::default() };
+        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &matches.pixels, points: &matches.points };
+        solve_pnp_ransac(&problem, &guidance, &params).ok()
     }
 
     /// LO-RANSAC on every correspondence with at most `iterations` hypotheses: `Ok(Ok(pose))`
@@ -111,6 +133,16 @@ struct Matches {
     pixels: Vec<nalgebra::Point2<f64>>,
     points: Vec<nalgebra::Point3<f64>>,
     scores: Vec<f32>,
+}
+
+impl Matches {
+    fn of(frame: &Frame) -> Self {
+        Self {
+            pixels: frame.correspondences.iter().map(|c| c.pixel).collect(),
+            points: frame.correspondences.iter().map(|c| c.point).collect(),
+            scores: frame.correspondences.iter().map(|c| c.score).collect(),
+        }
+    }
 }
 
 /// Distinct image cells of side `cell_px` holding at least one of `pixels`.

@@ -115,6 +115,9 @@ pub struct Localization {
     /// it measured when it did not.
     pub fast_path: bool,
     pub fast_path_check: Option<FastPathCheck>,
+    /// Whether the pose came from the cascade's last resort (plain LO-RANSAC on every
+    /// correspondence, after the rejection-guided PnP found no consensus).
+    pub last_resort: bool,
     pub timings: StageTimings,
     pub failure: Option<Failure>,
 }
@@ -186,6 +189,7 @@ impl Localizer {
             prior_quality: None,
             fast_path: false,
             fast_path_check: None,
+            last_resort: false,
             timings: StageTimings::default(),
             failure: None,
         };
@@ -219,13 +223,7 @@ impl Localizer {
             self.refine_on_all(frame, &mut solution);
         }
         out.fast_path = true;
-        out.kept = frame
-            .correspondences
-            .iter()
-            .zip(&solution.inliers)
-            .filter(|(_, &inlier)| inlier)
-            .map(|(c, _)| with_score(*c, 1.0))
-            .collect();
+        out.kept = inliers_of(frame, &solution);
         self.accept(&solution, self.verifier(frame).as_ref(), out);
         out.timings.pnp_ms = out.timings.fast_path_ms;
         true
@@ -303,10 +301,28 @@ impl Localizer {
                 if let Some(r) = &rejection {
                     out.kept = with_scores(r);
                 }
-                out.failure = Some(Failure::Pnp(e));
+                if !(rejection.is_some() && matches!(e, PnpError::NoConsensus { .. }) && self.last_resort(frame, out)) {
+                    out.failure = Some(Failure::Pnp(e));
+                }
             }
         }
         out.timings.pnp_ms = ms_since(t);
+    }
+
+    /// The cascade's last step ([`CascadeParams::last_resort`]): whether it found the pose, which
+    /// `out` then holds with its inliers as the kept set.
+    fn last_resort(&self, frame: &Frame, out: &mut Localization) -> bool {
+        let p = &self.params;
+        let Some(mut solution) = p.cascade.last_resort(frame, &p.pnp.for_camera(frame.intrinsics.fx), p.seed) else {
+            return false;
+        };
+        if p.final_refine.enabled {
+            self.refine_on_all(frame, &mut solution);
+        }
+        out.kept = inliers_of(frame, &solution);
+        out.last_resort = true;
+        self.accept(&solution, self.verifier(frame).as_ref(), out);
+        true
     }
 
     /// Fills `out` with the solved pose, and the prior's quality at it.
@@ -368,6 +384,17 @@ impl Localizer {
         }
         Ok(())
     }
+}
+
+/// The frame's correspondences that are inliers of `solution` (found on all of them), scored 1.
+fn inliers_of(frame: &Frame, solution: &PnpSolution) -> Vec<Correspondence> {
+    frame
+        .correspondences
+        .iter()
+        .zip(&solution.inliers)
+        .filter(|(_, &inlier)| inlier)
+        .map(|(c, _)| with_score(*c, 1.0))
+        .collect()
 }
 
 fn with_score(mut c: Correspondence, score: f32) -> Correspondence {
