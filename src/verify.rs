@@ -43,6 +43,10 @@ pub struct VerifyParams {
     pub render_voxel_m: f64,
     /// Side of the render's image cells, pixels.
     pub cell_px: f64,
+    /// Each rendered point covers a disc this many of the rendered points' spacings wide
+    /// (measured on the map when it is set), so a near surface hides what lies behind it even
+    /// where its points are farther apart than a cell; 0: each point fills one cell.
+    pub splat_spacings: f64,
     /// A cell agrees when |z − (a·prior + b)| < tolerance·z.
     pub tolerance: f64,
     /// Weight of the image coverage (cells of inliers over the best candidate's) beside the
@@ -66,6 +70,7 @@ impl Default for VerifyParams {
             render_range_m: 30.0,
             render_voxel_m: 2.0,
             cell_px: 32.0,
+            splat_spacings: 1.0,
             tolerance: 0.1,
             coverage_weight: 0.25,
         }
@@ -99,6 +104,8 @@ pub struct RenderMap {
     x: Vec<f32>,
     y: Vec<f32>,
     z: Vec<f32>,
+    /// The typical distance between neighbouring rendered points, metres (0: unknown).
+    spacing_m: f32,
     culled: Option<CulledRender>,
 }
 
@@ -115,7 +122,27 @@ impl RenderMap {
             map.y.push(p.y);
             map.z.push(p.z);
         }
+        map.spacing_m = map.point_spacing();
         map
+    }
+
+    /// The median distance from an even sample of the points to their nearest other point.
+    fn point_spacing(&self) -> f32 {
+        let points: Vec<Point3<f32>> =
+            self.x.iter().zip(&self.y).zip(&self.z).map(|((&x, &y), &z)| Point3::new(x, y, z)).collect();
+        let tree = crate::geometry::PointIndex::new(&points);
+        let step = (points.len() / SPACING_SAMPLES).max(1);
+        let mut gaps: Vec<f32> = points
+            .iter()
+            .step_by(step)
+            .filter_map(|p| points.get(*tree.nearest(p, 2).get(1)?).map(|q| (q - p).norm()))
+            .filter(|d| d.is_finite())
+            .collect();
+        if gaps.is_empty() {
+            return 0.0;
+        }
+        let mid = gaps.len() / 2;
+        *gaps.select_nth_unstable_by(mid, f32::total_cmp).1
     }
 
     /// Renders what `culled` finds in view at each pose.
@@ -140,6 +167,12 @@ impl RenderMap {
     }
 }
 
+/// Rendered points sampled to measure their spacing.
+const SPACING_SAMPLES: usize = 1000;
+
+/// A splat covers at most this many cells on each side of its centre.
+const MAX_SPLAT_CELLS: f32 = 8.0;
+
 /// Map points nearer than this in front of the camera are not rendered, metres.
 const NEAR_M: f32 = 0.05;
 
@@ -157,6 +190,8 @@ pub struct PriorVerifier<'a> {
     prior: Vec<f32>,
     space: PriorSpace,
     tolerance: f32,
+    /// Diameter of a rendered point's disc, metres (0: one cell).
+    splat_m: f32,
 }
 
 impl<'a> PriorVerifier<'a> {
@@ -206,6 +241,7 @@ impl<'a> PriorVerifier<'a> {
             prior: cells,
             space: kind.space(),
             tolerance: params.tolerance as f32,
+            splat_m: (params.splat_spacings.max(0.0) as f32) * map.spacing_m,
         })
     }
 
@@ -228,13 +264,18 @@ impl<'a> PriorVerifier<'a> {
         const BLOCK: usize = 256;
         let mut cell = [u32::MAX; BLOCK];
         let mut zs = [0f32; BLOCK];
+        // Half the splat's width in cells is `splat / z`.
+        let splat = 0.5 * fx * self.splat_m;
+        let mut halves = [0f32; BLOCK];
+        let mut uvs = [(0f32, 0f32); BLOCK];
         let slices = self.map.slices(pose, k);
         let blocks = slices.iter().flat_map(|m| (0..m.len()).step_by(BLOCK).map(move |start| (m, start)));
         for (map, start) in blocks {
             let end = (start + BLOCK).min(map.len());
             let (xs, ys, zm) = (&map.x[start..end], &map.y[start..end], &map.z[start..end]);
             let points = xs.iter().zip(ys).zip(zm);
-            for ((c, z), ((&px, &py), &pz)) in cell.iter_mut().zip(zs.iter_mut()).zip(points) {
+            let out = cell.iter_mut().zip(zs.iter_mut()).zip(halves.iter_mut()).zip(uvs.iter_mut());
+            for ((((c, z), half), uv), ((&px, &py), &pz)) in out.zip(points) {
                 let x = r0[0] * px + r0[1] * py + r0[2] * pz + t.x;
                 let y = r1[0] * px + r1[1] * py + r1[2] * pz + t.y;
                 let cz = r2[0] * px + r2[1] * py + r2[2] * pz + t.z;
@@ -243,17 +284,42 @@ impl<'a> PriorVerifier<'a> {
                 let visible = cz > NEAR_M && u >= 0.0 && v >= 0.0 && u < w && v < h;
                 *c = if visible { v as u32 * cols + u as u32 } else { u32::MAX };
                 *z = cz;
+                *half = splat * iz;
+                *uv = (u, v);
             }
             let n = xs.len();
-            for (&c, &z) in cell[..n].iter().zip(&zs[..n]) {
-                if let Some(d) = depth.get_mut(c as usize) {
+            for (((&c, &z), &half), &(u, v)) in cell[..n].iter().zip(&zs[..n]).zip(&halves[..n]).zip(&uvs[..n]) {
+                if half < 0.5 {
+                    if let Some(d) = depth.get_mut(c as usize) {
+                        if z < *d {
+                            *d = z;
+                        }
+                    }
+                } else if c != u32::MAX {
+                    self.splat(&mut depth, u, v, half.min(MAX_SPLAT_CELLS), z);
+                }
+            }
+        }
+        depth
+    }
+
+    /// Writes depth `z` into the cells that the square of half-side `half` (cells) around
+    /// `(u, v)` (cell units, inside the image) overlaps, where nothing nearer was seen.
+    fn splat(&self, depth: &mut [f32], u: f32, v: f32, half: f32, z: f32) {
+        let span = |centre: f32, len: usize| {
+            let first = (centre - half).floor().max(0.0) as usize;
+            let last = ((centre + half).floor().max(0.0) as usize).min(len.saturating_sub(1));
+            first..=last
+        };
+        for r in span(v, self.rows) {
+            for c in span(u, self.cols) {
+                if let Some(d) = depth.get_mut(r * self.cols + c) {
                     if z < *d {
                         *d = z;
                     }
                 }
             }
         }
-        depth
     }
 
     /// The image cells in which the map rendered at `pose` agrees with the prior under the best
@@ -369,6 +435,50 @@ mod tests {
         let centre = depth[(v.rows / 2) * v.cols + v.cols / 2];
         assert!((centre - 5.0).abs() < 0.1, "{centre}");
         assert!(depth.iter().all(|z| z.is_finite()), "inside a closed room every cell sees a wall");
+    }
+
+    /// A sparse screen of points 0.5 m in front of the camera (4 cm apart: three 8 px cells
+    /// there) before the room's far wall, 5 m away.
+    fn screen_before_wall() -> Vec<Point3<f32>> {
+        let mut pts = room();
+        for i in -15..=15 {
+            for j in -15..=15 {
+                pts.push(Point3::new(1.5, 2.0 + 0.04 * i as f32, 1.5 + 0.04 * j as f32));
+            }
+        }
+        pts
+    }
+
+    #[test]
+    fn splats_let_a_sparse_near_surface_hide_what_lies_behind_it() {
+        let k = intrinsics();
+        let flat = DepthImage::new(k.width, k.height, vec![1.0; (k.width * k.height) as usize]);
+        let map = RenderMap::new(&screen_before_wall(), usize::MAX);
+        let at = pose([1.0, 2.0, 1.5], 0.0);
+        let near_share = |splat_spacings: f64| {
+            let params = VerifyParams { cell_px: 8.0, splat_spacings, ..VerifyParams::default() };
+            let v = PriorVerifier::new(&map, &flat, DepthKind::Depth, &k, &params).unwrap();
+            let depth = v.render(&at);
+            depth.iter().filter(|&&z| z < 1.0).count() as f64 / depth.len() as f64
+        };
+        // The screen fills the view. Points alone leave most cells to the wall behind it; splats
+        // one spacing wide (the room's 5 cm, measured on the map) close the gaps.
+        let (points, splats) = (near_share(0.0), near_share(1.0));
+        assert!(points < 0.3, "{points}");
+        assert!(splats > 0.9, "{splats}");
+    }
+
+    #[test]
+    fn far_points_still_fill_one_cell_with_splats_on() {
+        // The room seen from 1 m: a 5 cm spacing spans under a 32 px cell, so splats change nothing.
+        let map = RenderMap::new(&room(), 1_000_000);
+        let k = intrinsics();
+        let flat = DepthImage::new(k.width, k.height, vec![1.0; (k.width * k.height) as usize]);
+        let render = |splat_spacings| {
+            let params = VerifyParams { splat_spacings, ..VerifyParams::default() };
+            PriorVerifier::new(&map, &flat, DepthKind::Depth, &k, &params).unwrap().render(&pose([1.0, 2.0, 1.5], 0.3))
+        };
+        assert_eq!(render(0.0), render(1.0));
     }
 
     #[test]
