@@ -43,9 +43,10 @@ pub struct VerifyParams {
     pub render_voxel_m: f64,
     /// Side of the render's image cells, pixels.
     pub cell_px: f64,
-    /// Each rendered point covers a disc this many of the rendered points' spacings wide
-    /// (measured on the map when it is set), so a near surface hides what lies behind it even
-    /// where its points are farther apart than a cell; 0: each point fills one cell.
+    /// Each rendered point covers a square this many of the rendered points' spacings wide (the
+    /// median nearest-neighbour distance, measured on the map when it is set), so a near surface
+    /// hides what lies behind it even where its points are farther apart than a cell; 0: each
+    /// point fills one cell. Larger closes more gaps and blurs more edges.
     pub splat_spacings: f64,
     /// A cell agrees when |z − (a·prior + b)| < tolerance·z.
     pub tolerance: f64,
@@ -70,7 +71,7 @@ impl Default for VerifyParams {
             render_range_m: 30.0,
             render_voxel_m: 2.0,
             cell_px: 32.0,
-            splat_spacings: 1.0,
+            splat_spacings: 0.75,
             tolerance: 0.1,
             coverage_weight: 0.25,
         }
