@@ -189,7 +189,8 @@ fn inner_ros_parameters_rosout_and_clock() {
         }
         lines.iter().any(|(n, m)| n == "cam5.angle_i2p" && m.contains("parameter node.min_rate_hz set"))
     });
-    assert!(read(&log6).contains("node /cam6/angle_i2p"), "/cam6 started\n{}", read(&log6));
+    // /cam6 has started (its start line is in its log), and had time to reach /rosout.
+    wait_for("/cam6 started", &logs, || read(&log6).contains("node /cam6/angle_i2p"));
     std::thread::sleep(Duration::from_millis(500));
     while let Ok(Some((l, _))) = rosout.take() {
         lines.push((l.name, l.msg));
