@@ -49,14 +49,12 @@ async fn with_timeout<F: std::future::Future>(fut: F, limit: Duration) -> Option
     }
 }
 
-/// Calls `service` (of type `rcl_interfaces/<ty>`) once, 20 s at most to appear and to answer.
-fn call<Req: Message + Clone + 'static, Resp: Message + 'static>(
+/// A client of the `rcl_interfaces/<ty>` service `service`, once it has appeared (20 s at most).
+fn client<Req: Message + Clone + 'static, Resp: Message + 'static>(
     ros: &mut ros2_client::Node,
     service: &str,
     ty: &str,
-    request: Req,
-    log: &Path,
-) -> Resp {
+) -> ros2_client::Client<Req, Resp> {
     let qos = dds::reliable(10);
     let client = ros
         .create_client::<Req, Resp>(
@@ -67,27 +65,59 @@ fn call<Req: Message + Clone + 'static, Resp: Message + 'static>(
             qos,
         )
         .expect("client");
-    let answer = futures::executor::block_on(async {
-        with_timeout(client.wait_for_service(ros), Duration::from_secs(20)).await.expect("the service appears");
-        with_timeout(client.async_call_service(request), Duration::from_secs(20)).await
-    });
-    match answer {
-        Some(Ok(r)) => r,
-        _ => panic!("no answer from {service}\n{}", read(log)),
+    let appeared = futures::executor::block_on(with_timeout(client.wait_for_service(ros), Duration::from_secs(20)));
+    assert!(appeared.is_some(), "{service} never appeared");
+    client
+}
+
+/// Calls `client`; a request sent before the server's reply writer has matched this client gets
+/// no answer, so unanswered calls are repeated (every call here is idempotent), 30 s at most.
+fn call<Req: Message + Clone + 'static, Resp: Message + 'static>(
+    client: &ros2_client::Client<Req, Resp>,
+    request: Req,
+    log: &Path,
+) -> Resp {
+    let end = Instant::now() + Duration::from_secs(30);
+    while Instant::now() < end {
+        let answer = futures::executor::block_on(with_timeout(
+            client.async_call_service(request.clone()),
+            Duration::from_secs(3),
+        ));
+        if let Some(Ok(r)) = answer {
+            return r;
+        }
     }
+    panic!("no answer in 30 s\n{}", read(log))
 }
 
-fn get(ros: &mut ros2_client::Node, names: &[&str], log: &Path) -> Vec<ParameterValue> {
-    let request = GetParametersRequest { names: names.iter().map(|n| n.to_string()).collect() };
-    let r: GetParametersResponse = call(ros, "/cam5/angle_i2p/get_parameters", "GetParameters", request, log);
-    r.values.into_iter().map(ParameterValue::from).collect()
+/// The parameter services of `/cam5/angle_i2p`.
+struct ParamClients {
+    list: ros2_client::Client<ListParametersRequest, ListParametersResponse>,
+    get: ros2_client::Client<GetParametersRequest, GetParametersResponse>,
+    set: ros2_client::Client<SetParametersRequest, SetParametersResponse>,
 }
 
-fn set(ros: &mut ros2_client::Node, name: &str, value: ParameterValue, log: &Path) -> raw::SetParametersResult {
-    let request = SetParametersRequest { parameter: vec![raw::Parameter { name: name.into(), value: value.into() }] };
-    let mut r: SetParametersResponse = call(ros, "/cam5/angle_i2p/set_parameters", "SetParameters", request, log);
-    assert_eq!(r.results.len(), 1);
-    r.results.remove(0)
+impl ParamClients {
+    fn new(ros: &mut ros2_client::Node) -> Self {
+        Self {
+            list: client(ros, "/cam5/angle_i2p/list_parameters", "ListParameters"),
+            get: client(ros, "/cam5/angle_i2p/get_parameters", "GetParameters"),
+            set: client(ros, "/cam5/angle_i2p/set_parameters", "SetParameters"),
+        }
+    }
+
+    fn get(&self, names: &[&str], log: &Path) -> Vec<ParameterValue> {
+        let request = GetParametersRequest { names: names.iter().map(|n| n.to_string()).collect() };
+        call(&self.get, request, log).values.into_iter().map(ParameterValue::from).collect()
+    }
+
+    fn set(&self, name: &str, value: ParameterValue, log: &Path) -> raw::SetParametersResult {
+        let request =
+            SetParametersRequest { parameter: vec![raw::Parameter { name: name.into(), value: value.into() }] };
+        let mut r = call(&self.set, request, log);
+        assert_eq!(r.results.len(), 1);
+        r.results.remove(0)
+    }
 }
 
 fn wait_for(what: &str, logs: &[&Path], mut ok: impl FnMut() -> bool) {
@@ -142,13 +172,8 @@ fn inner_ros_parameters_rosout_and_clock() {
     let clock_pub = ros.create_publisher::<Clock>(&clock_topic, Some(clock_qos)).expect("pub");
 
     // Listed under their dotted names, use_sim_time at the top; read back with their values.
-    let list: ListParametersResponse = call(
-        &mut ros,
-        "/cam5/angle_i2p/list_parameters",
-        "ListParameters",
-        ListParametersRequest { prefixes: vec![], depth: 0 },
-        &log5,
-    );
+    let params = ParamClients::new(&mut ros);
+    let list = call(&params.list, ListParametersRequest { prefixes: vec![], depth: 0 }, &log5);
     let names = &list.result.names;
     for want in
         ["pnp.min_inliers", "node.queue_depth", "node.tf_mode", "topics.pose", "limits.max_map_points", "use_sim_time"]
@@ -157,8 +182,7 @@ fn inner_ros_parameters_rosout_and_clock() {
     }
     assert!(!names.iter().any(|n| n == "node.use_sim_time"), "{names:?}");
     assert!(names.len() > 100, "{} parameters", names.len());
-    let values =
-        get(&mut ros, &["pnp.min_inliers", "node.min_rate_hz", "use_sim_time", "node.odom_frame", "nope"], &log5);
+    let values = params.get(&["pnp.min_inliers", "node.min_rate_hz", "use_sim_time", "node.odom_frame", "nope"], &log5);
     assert_eq!(
         values,
         [
@@ -171,14 +195,14 @@ fn inner_ros_parameters_rosout_and_clock() {
     );
 
     // A live parameter changes; a read-only one and a bad value are refused with the reason.
-    let ok = set(&mut ros, "node.min_rate_hz", ParameterValue::Double(5.0), &log5);
+    let ok = params.set("node.min_rate_hz", ParameterValue::Double(5.0), &log5);
     assert!(ok.successful, "{ok:?}");
-    assert_eq!(get(&mut ros, &["node.min_rate_hz"], &log5), [ParameterValue::Double(5.0)]);
-    let ro = set(&mut ros, "pnp.threshold_px", ParameterValue::Double(2.0), &log5);
+    assert_eq!(params.get(&["node.min_rate_hz"], &log5), [ParameterValue::Double(5.0)]);
+    let ro = params.set("pnp.threshold_px", ParameterValue::Double(2.0), &log5);
     assert!(!ro.successful && ro.reason.contains("read-only"), "{ro:?}");
-    let bad = set(&mut ros, "node.min_rate_hz", ParameterValue::Double(-3.0), &log5);
+    let bad = params.set("node.min_rate_hz", ParameterValue::Double(-3.0), &log5);
     assert!(!bad.successful && bad.reason.contains("must be"), "{bad:?}");
-    assert_eq!(get(&mut ros, &["node.min_rate_hz", "pnp.threshold_px"], &log5)[0], ParameterValue::Double(5.0));
+    assert_eq!(params.get(&["node.min_rate_hz", "pnp.threshold_px"], &log5)[0], ParameterValue::Double(5.0));
 
     // Log lines reach /rosout under the node's logger name, the change among them; none of /cam6's.
     let rosout = ros.rosout_subscription().expect("rosout reader");
@@ -210,7 +234,7 @@ fn inner_ros_parameters_rosout_and_clock() {
         }
         last == Some(sim)
     });
-    let ok = set(&mut ros, "use_sim_time", ParameterValue::Boolean(false), &log5);
+    let ok = params.set("use_sim_time", ParameterValue::Boolean(false), &log5);
     assert!(ok.successful, "{ok:?}");
     let wall = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("clock").as_nanos() as i64;
     wait_for("diagnostics stamped with wall time again", &logs, || {
