@@ -471,6 +471,11 @@ impl FramePublisher {
     }
 }
 
+/// Wall-clock time in ns since the epoch.
+fn angle_i2p_now_ns() -> i64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64)
+}
+
 fn diag(d: &msgs::DiagnosticArray, key: &str) -> u64 {
     status_value(d, key).and_then(|v| v.parse().ok()).unwrap_or(0)
 }
@@ -780,8 +785,9 @@ fn inner_debug_image() {
 }
 
 /// A raw `bgr8` sensor_msgs/Image on /camera/image_raw feeds the debug image (channel order
-/// right), and with `odom_frame:=odom` the node broadcasts `map → odom` from an
-/// `odom → base_link → camera` chain on /tf (none, counted, before the chain is known).
+/// right), and the default TF (REP 105): `map → camera` while no `odom` frame is heard, then
+/// `map → odom` from an `odom → base_link → camera` chain on /tf, future-dated and re-sent at
+/// `tf_publish_rate_hz`, and the pose of `base_link` on `angle_i2p/base_pose`.
 #[test]
 #[ignore = "runs inside a network namespace, via live_raw_image_and_odom_tf"]
 fn inner_raw_image_and_odom_tf() {
@@ -813,7 +819,7 @@ fn inner_raw_image_and_odom_tf() {
             "-p",
             "debug_image:=true",
             "-p",
-            "odom_frame:=odom",
+            "tf_publish_rate_hz:=10.0",
             "-p",
             "frame_timeout_ms:=2000",
             "-p",
@@ -826,6 +832,8 @@ fn inner_raw_image_and_odom_tf() {
     let raw_pub = dds::publisher::<msgs::Image>(&mut wire.ros, "/camera/image_raw", &dds::reliable(10)).expect("pub");
     let tf_pub = dds::publisher::<msgs::TFMessage>(&mut wire.ros, "/tf", &dds::reliable(100)).expect("pub");
     let tf_sub = dds::subscription::<msgs::TFMessage>(&mut wire.ros, "/tf", &dds::reliable(100)).expect("sub");
+    let base_sub =
+        dds::subscription::<msgs::PoseStamped>(&mut wire.ros, "/angle_i2p/base_pose", &dds::reliable(10)).expect("sub");
     let debug_sub =
         dds::subscription::<msgs::Image>(&mut wire.ros, "/angle_i2p/debug_image", &dds::sensor_data(10)).expect("sub");
     wire.wait_matched(
@@ -833,6 +841,8 @@ fn inner_raw_image_and_odom_tf() {
             vec![
                 raw_pub.get_subscription_count(ros),
                 tf_pub.get_subscription_count(ros),
+                tf_sub.get_publisher_count(ros),
+                base_sub.get_publisher_count(ros),
                 debug_sub.get_publisher_count(ros),
             ]
         },
@@ -896,12 +906,26 @@ fn inner_raw_image_and_odom_tf() {
         .map(|(x, y, p)| (x, y, p.0))
         .expect("a coloured pixel away from the matches");
     assert_eq!(px(far.0, far.1), far.2, "pixel ({}, {}) of the bgr8 input, as rgb", far.0, far.1);
-    wait_diag_until(&wire.diag, Instant::now(), tmp.path(), "no_odom_transform counted", &|d| {
-        diag(d, "error.no_odom_transform") == 1
+    // No odom frame heard yet (a camera without odometry): map → camera, said once in the log.
+    let wait_tf = |what: &str, ok: &dyn Fn(&msgs::TransformStamped) -> bool| -> msgs::TransformStamped {
+        let end = Instant::now() + Duration::from_secs(20);
+        loop {
+            if let Ok(Some((m, _))) = tf_sub.take() {
+                if let Some(t) = m.transforms.into_iter().find(|t| ok(t)) {
+                    return t;
+                }
+            }
+            assert!(Instant::now() < end, "no {what} on /tf\n{}", node_log(tmp.path()));
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    };
+    let ts = wait_tf("map → camera", &|t| t.child_frame_id == cam);
+    assert_eq!((ts.header.frame_id.as_str(), convert::stamp(&ts.header)), ("map", s1));
+    wait_diag_until(&wire.diag, Instant::now(), tmp.path(), "map → camera counted", &|d| {
+        diag(d, "tf.map_to_camera") == 1 && diag(d, "error.no_odom_transform") == 0
     });
-    while let Ok(Some((m, _))) = tf_sub.take() {
-        assert!(m.transforms.iter().all(|t| t.child_frame_id != "odom" && t.child_frame_id != cam), "TF without odom");
-    }
+    assert!(node_log(tmp.path()).contains("broadcasting map → camera until it is"), "{}", node_log(tmp.path()));
+    assert!(base_sub.take().ok().flatten().is_none(), "a base pose without base_link heard");
 
     // The chain odom → base_link → camera, then frame 2: map → odom.
     let iso = |t: [f64; 3], axis: [f64; 3], angle: f64| {
@@ -934,16 +958,7 @@ fn inner_raw_image_and_odom_tf() {
     std::thread::sleep(Duration::from_millis(500));
     publish_frame(s2);
     wait_debug(s2);
-    let end = Instant::now() + Duration::from_secs(20);
-    let ts = loop {
-        if let Ok(Some((m, _))) = tf_sub.take() {
-            if let Some(t) = m.transforms.into_iter().find(|t| t.child_frame_id == "odom") {
-                break t;
-            }
-        }
-        assert!(Instant::now() < end, "no map → odom on /tf\n{}", node_log(tmp.path()));
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let ts = wait_tf("map → odom", &|t| t.child_frame_id == "odom");
     assert_eq!(ts.header.frame_id, good.map_frame_id);
     // Future-dated by node.transform_tolerance_s (0.1 s), as REP 105 localizers do.
     assert_eq!(convert::stamp(&ts.header), s2 + 100_000_000);
@@ -951,9 +966,36 @@ fn inner_raw_image_and_odom_tf() {
     let tr = ts.transform;
     let r = tr.rotation;
     assert_pose_close(s2, [tr.translation.x, tr.translation.y, tr.translation.z], [r.x, r.y, r.z, r.w], &want);
+    // The pose of base_link in the map: map → camera · (base_link → camera)⁻¹.
+    let end = Instant::now() + Duration::from_secs(20);
+    let base = loop {
+        if let Ok(Some((p, _))) = base_sub.take() {
+            break p;
+        }
+        assert!(Instant::now() < end, "no base pose\n{}", node_log(tmp.path()));
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    assert_eq!((convert::stamp(&base.header), base.header.frame_id.as_str()), (s2, "map"));
+    let (p, q) = (base.pose.position, base.pose.orientation);
+    assert_pose_close(s2, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w], &(loc.pose.expect("pose") * base_cam.inverse()));
+    // Re-sent at 10 Hz without new frames, stamped from the node's (wall) clock + 0.1 s.
+    while let Ok(Some(_)) = tf_sub.take() {}
+    let since = Instant::now();
+    let mut resent = 0;
+    while resent < 3 {
+        let t = wait_tf("a re-sent map → odom", &|t| t.child_frame_id == "odom");
+        let ahead_ms = (convert::stamp(&t.header) - angle_i2p_now_ns()) as f64 / 1e6;
+        assert!((0.0..=150.0).contains(&ahead_ms), "re-sent map → odom {ahead_ms} ms ahead of now");
+        assert_eq!(t.transform, tr, "the re-sent transform is the last one");
+        resent += 1;
+    }
+    assert!(since.elapsed() < Duration::from_secs(2), "3 re-sends took {:?} at 10 Hz", since.elapsed());
+    wait_diag_until(&wire.diag, Instant::now(), tmp.path(), "counted", &|d| {
+        diag(d, "tf.map_to_odom") == 1 && diag(d, "tf.republished") >= 3 && diag(d, "tf.base_pose") == 1
+    });
     assert!(matches!(node.0.try_wait(), Ok(None)), "the node exited\n{}", node_log(tmp.path()));
     let status = interrupt(&mut node.0).expect("node did not stop on SIGINT");
     assert!(status.success(), "node exit {status}");
-    eprintln!("raw bgr8 debug image OK; map → odom = (map→camera)·(odom→camera)⁻¹ on /tf");
+    eprintln!("raw bgr8 debug image OK; map → camera, then map → odom = (map→camera)·(odom→camera)⁻¹ on /tf, re-sent; base pose");
     mark_done();
 }

@@ -41,6 +41,12 @@ pub fn node(context: &Context, namespace: &str, name: &str) -> Result<Node> {
         .map_err(|e| anyhow!("cannot create node {namespace}/{name}: {e:?}"))
 }
 
+/// A node `namespace/name` with `options` (parameter services, rosout).
+pub fn node_with_options(context: &Context, namespace: &str, name: &str, options: NodeOptions) -> Result<Node> {
+    let node_name = NodeName::new(namespace, name).map_err(|e| anyhow!("bad node name {namespace}/{name}: {e:?}"))?;
+    context.new_node(node_name, options).map_err(|e| anyhow!("cannot create node {namespace}/{name}: {e:?}"))
+}
+
 /// `pkg/msg/Type` → ros2-client's [`MessageTypeName`] (DDS `pkg::msg::dds_::Type_`).
 pub fn type_name<M: RosMessage>() -> MessageTypeName {
     let full = M::TYPE_NAME;

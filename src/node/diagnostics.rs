@@ -36,6 +36,9 @@ pub struct Stats {
     pub map_points: usize,
     pub drops: BTreeMap<String, u64>,
     pub errors: BTreeMap<String, u64>,
+    /// Transforms and base poses sent, by kind (`map_to_odom`, `map_to_camera`, `republished`,
+    /// `base_pose`): `tf.<kind>` in the report.
+    pub tf_sent: BTreeMap<String, u64>,
     pub last_failure: Option<String>,
     pub last_stamp: Option<Stamp>,
     /// Most frames ever waiting for the worker (just after a frame was queued).
@@ -65,6 +68,7 @@ impl Default for Stats {
             map_points: 0,
             drops: BTreeMap::new(),
             errors: BTreeMap::new(),
+            tf_sent: BTreeMap::new(),
             last_failure: None,
             last_stamp: None,
             queued_max: 0,
@@ -88,6 +92,11 @@ impl Stats {
     pub fn error(&mut self, reason: &str, detail: impl Into<String>) {
         *self.errors.entry(reason.to_string()).or_default() += 1;
         self.last_failure = Some(detail.into());
+    }
+
+    /// One transform (or base pose) of `kind` sent.
+    pub fn count_tf(&mut self, kind: &str) {
+        *self.tf_sent.entry(kind.to_string()).or_default() += 1;
     }
 
     pub fn drop_count(&self, reason: &str) -> u64 {
@@ -171,6 +180,7 @@ impl Stats {
         .collect::<Vec<_>>();
         values.extend(self.drops.iter().map(|(k, v)| KeyValue { key: format!("dropped.{k}"), value: v.to_string() }));
         values.extend(self.errors.iter().map(|(k, v)| KeyValue { key: format!("error.{k}"), value: v.to_string() }));
+        values.extend(self.tf_sent.iter().map(|(k, v)| KeyValue { key: format!("tf.{k}"), value: v.to_string() }));
         let level = self.health.level(now, self.maps_received > 0);
         let mut status = vec![DiagnosticStatus {
             level: level.level,
@@ -208,6 +218,7 @@ mod tests {
         s.frame_done(4, true, 8.0, 6.0);
         s.frame_evidence(Some(0.8), false);
         s.frame_evidence(None, true);
+        s.count_tf("map_to_odom");
         let r = s.report(5, "angle_i2p", "/angle_i2p");
         assert_eq!(r.status[0].name, "angle_i2p: localization");
         assert_eq!(r.status[0].level, DiagnosticStatus::OK, "{}", r.status[0].message);
@@ -215,6 +226,7 @@ mod tests {
         assert_eq!(status_value(&r, "fast_path_share"), Some("0.50"));
         assert_eq!(status_value(&r, "dropped.queue_full"), Some("2"));
         assert_eq!(status_value(&r, "error.pnp"), Some("1"));
+        assert_eq!(status_value(&r, "tf.map_to_odom"), Some("1"));
         assert_eq!(status_value(&r, "frames_localized"), Some("1"));
         assert_eq!(status_value(&r, "latency_ms_median"), Some("10.00"));
         assert_eq!(status_value(&r, "last_stamp"), Some("4"));

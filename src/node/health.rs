@@ -56,6 +56,11 @@ impl Health {
         Self { window, min_rate_hz, inputs: Vec::new(), outcomes: VecDeque::new(), since: now }
     }
 
+    /// A new `min_rate_hz` (a live parameter change).
+    pub fn set_min_rate_hz(&mut self, min_rate_hz: f64) {
+        self.min_rate_hz = min_rate_hz;
+    }
+
     /// Watches the input `topic`, which carries frame parts of `kind`.
     pub fn watch_input(&mut self, kind: &str, topic: &str) {
         self.inputs.push(InputActivity { kind: kind.into(), topic: topic.into(), arrivals: VecDeque::new(), total: 0 });

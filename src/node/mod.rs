@@ -17,6 +17,7 @@
 //! `/diagnostics` and logged; the node keeps going. Topics are the [`crate::bag::TopicMap`]'s,
 //! resolved with `--ros-args` remaps.
 
+pub mod clock;
 pub mod dds;
 pub mod diagnostics;
 pub mod health;
@@ -30,6 +31,7 @@ mod outputs;
 pub mod qos_watch;
 pub mod queue;
 mod readers;
+pub mod ros_params;
 mod run;
 pub mod services;
 pub mod tf;
@@ -78,10 +80,11 @@ pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     if let Some(enclave) = &args.enclave {
         eprintln!("[angle_i2p] WARN enclave {enclave:?} accepted but not applied: DDS security is not built in");
     }
+    let rosout = args.rosout.unwrap_or(true);
     for flag in &args.ignored {
         eprintln!("[angle_i2p] {flag}: accepted, no effect (the node logs to stderr only)");
     }
     let runtime =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().thread_name("angle_i2p").build()?;
-    runtime.block_on(run_node(names, resolved, config.record))
+    runtime.block_on(run_node(names, resolved, config.record, rosout))
 }

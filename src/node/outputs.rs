@@ -11,9 +11,9 @@ use ros2_client::Publisher;
 use super::dds;
 use super::diagnostics::Stats;
 use super::image as img;
+use super::log::info;
 use super::log::{lock, now_ns, warn};
-use super::tf;
-use super::tf_buffer::TfHistory;
+use super::tf::{FrameTf, TfBroadcast};
 use super::topics::Topics;
 use crate::bag::BagWriter;
 use crate::frame::Frame;
@@ -58,22 +58,13 @@ pub struct Outputs {
     pose: Publisher<msgs::PoseStamped>,
     pose_cov: Publisher<msgs::PoseWithCovarianceStamped>,
     kept: Publisher<msgs::Correspondences>,
-    tf: Option<Publisher<msgs::TFMessage>>,
-    /// With `node.odom_frame` set: that frame and the transforms heard on /tf.
-    odom: Option<(String, Arc<Mutex<TfHistory>>)>,
-    /// How far `map → odom` is future-dated, ns.
-    tolerance_ns: i64,
+    tf: Option<Arc<Publisher<msgs::TFMessage>>>,
+    /// What goes on /tf and the base pose, shared with the periodic `map → odom` re-send.
+    broadcast: Arc<Mutex<TfBroadcast>>,
+    base_pose: Option<Publisher<msgs::PoseStamped>>,
     debug: Option<Publisher<msgs::Image>>,
     recorder: Recorder,
     pub stats: Arc<Mutex<Stats>>,
-}
-
-/// Where TF goes: `map → camera`, or with an odom frame `map → odom` from the transforms heard.
-pub struct TfSetup {
-    pub odom_frame: String,
-    pub buffer: Option<Arc<Mutex<TfHistory>>>,
-    /// `node.transform_tolerance_s` in ns.
-    pub tolerance_ns: i64,
 }
 
 impl Outputs {
@@ -82,12 +73,18 @@ impl Outputs {
         node: &mut ros2_client::Node,
         topics: &Topics,
         np: &NodeParams,
-        tf_setup: &TfSetup,
+        broadcast: Arc<Mutex<TfBroadcast>>,
         recorder: Recorder,
         stats: Arc<Mutex<Stats>>,
     ) -> Result<Self> {
         let out_qos = dds::reliable(10);
-        let tf = if np.publish_tf { Some(dds::publisher(node, &topics.tf, &dds::reliable(100))?) } else { None };
+        let tf =
+            if np.publish_tf { Some(Arc::new(dds::publisher(node, &topics.tf, &dds::reliable(100))?)) } else { None };
+        let base_pose = if lock(&broadcast).frames().base.is_empty() {
+            None
+        } else {
+            Some(dds::publisher(node, &topics.base_pose, &out_qos)?)
+        };
         let debug =
             if np.debug_image { Some(dds::publisher(node, &topics.debug_image, &dds::sensor_data(5))?) } else { None };
         Ok(Self {
@@ -95,13 +92,18 @@ impl Outputs {
             pose_cov: dds::publisher(node, &topics.pose_with_covariance, &out_qos)?,
             kept: dds::publisher(node, &topics.output_correspondences, &out_qos)?,
             tf,
-            odom: tf_setup.buffer.clone().map(|b| (tf_setup.odom_frame.clone(), b)),
-            tolerance_ns: tf_setup.tolerance_ns,
+            broadcast,
+            base_pose,
             debug,
             topics: topics.clone(),
             recorder,
             stats,
         })
+    }
+
+    /// The /tf publisher, for the periodic re-send of `map → odom`.
+    pub fn tf_publisher(&self) -> Option<Arc<Publisher<msgs::TFMessage>>> {
+        self.tf.clone()
     }
 
     async fn send<M: RosMessage + Clone + std::fmt::Debug>(&self, p: &Publisher<M>, topic: &str, msg: M) {
@@ -122,14 +124,8 @@ impl Outputs {
         if let Some(pose_with_covariance) = out.pose_with_covariance {
             self.send(&self.pose_cov, &topics.pose_with_covariance, pose_with_covariance).await;
         }
-        if let (Some(tf), Some(pose)) = (&self.tf, &loc.pose) {
-            match self.tf_message(loc, pose) {
-                Ok(msg) => self.send(tf, &topics.tf, msg).await,
-                Err(detail) => {
-                    warn(&detail);
-                    lock(&self.stats).error("no_odom_transform", detail);
-                }
-            }
+        if let Some(pose) = &loc.pose {
+            self.publish_tf(loc, pose).await;
         }
         self.send(&self.kept, &topics.output_correspondences, out.kept).await;
         if let Some(debug) = &self.debug {
@@ -142,22 +138,34 @@ impl Outputs {
         self.recorder.write(crate::app::DIAGNOSTICS_TOPIC, &crate::app::localization_diagnostics(loc), &self.stats);
     }
 
-    /// TF of a localized frame: `map → camera`, or `map → odom` when an odom frame is set
-    /// (an error naming what is missing when odom → camera is unknown).
-    fn tf_message(&self, loc: &Localization, pose: &nalgebra::Isometry3<f64>) -> Result<msgs::TFMessage, String> {
-        let Some((odom, buffer)) = &self.odom else {
-            return Ok(tf::tf_message(loc.stamp, &loc.map_frame_id, &loc.camera_frame_id, pose));
-        };
-        let odom_camera = lock(buffer).lookup(odom, &loc.camera_frame_id, loc.stamp);
-        let odom_camera = odom_camera.map_err(|e| {
-            format!(
-                "frame {}: no transform {odom} → {} at its stamp ({e}); no TF published",
-                loc.stamp, loc.camera_frame_id
-            )
-        })?;
-        // Future-dated (REP 105, as amcl): valid until the next localization is due.
-        let stamp = loc.stamp.saturating_add(self.tolerance_ns);
-        Ok(tf::tf_message(stamp, &loc.map_frame_id, odom, &tf::map_to_odom(pose, &odom_camera)))
+    /// The TF and base pose of a localized frame (problems counted, news logged).
+    async fn publish_tf(&self, loc: &Localization, pose: &nalgebra::Isometry3<f64>) {
+        let FrameTf { tf, kind, base_pose, problems, notes } = lock(&self.broadcast).for_frame(
+            loc.stamp,
+            &loc.camera_frame_id,
+            &loc.map_frame_id,
+            pose,
+            self.tf.is_some(),
+        );
+        for note in notes {
+            info(note);
+        }
+        for problem in problems {
+            if problem.log {
+                warn(format!("{} (logged once until it works)", problem.error));
+            }
+            lock(&self.stats).error(problem.error.key(), problem.error.to_string());
+        }
+        if let (Some(publisher), Some(msg)) = (&self.tf, tf) {
+            if let Some(kind) = kind {
+                lock(&self.stats).count_tf(kind);
+            }
+            self.send(publisher, &self.topics.tf, msg).await;
+        }
+        if let (Some(publisher), Some(msg)) = (&self.base_pose, base_pose) {
+            lock(&self.stats).count_tf("base_pose");
+            self.send(publisher, &self.topics.base_pose, msg).await;
+        }
     }
 }
 

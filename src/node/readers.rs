@@ -199,20 +199,15 @@ pub fn subscribe_tf(r: &mut Readers, topics: &Topics, buffer: &Arc<Mutex<TfHisto
 pub fn subscribe_initial_pose(
     r: &mut Readers,
     topics: &Topics,
-    np: &NodeParams,
+    width: &Arc<Mutex<GateWidth>>,
     gate: &Arc<Mutex<Option<PoseGate>>>,
 ) -> Result<()> {
-    let width = GateWidth {
-        sigmas: np.initialpose_gate_sigmas,
-        min_radius_m: np.initialpose_min_radius_m,
-        min_angle_deg: np.initialpose_min_angle_deg,
-    };
-    let gate = gate.clone();
+    let (gate, width) = (gate.clone(), width.clone());
     read(
         r,
         &topics.initial_pose,
         &dds::reliable(10),
-        move |m: msgs::PoseWithCovarianceStamped| match PoseGate::from_msg(&m, None, width) {
+        move |m: msgs::PoseWithCovarianceStamped| match PoseGate::from_msg(&m, None, *lock(&width)) {
             Ok(g) => {
                 info(format!("initial pose: gate {:.2} m / {:.1}°", g.radius_m, g.max_angle_rad.to_degrees()));
                 *lock(&gate) = Some(g);

@@ -123,6 +123,11 @@ impl TfHistory {
         Self { links: HashMap::new(), slack_ns: slack_ns.max(0) }
     }
 
+    /// A new slack (a live change of `transform_tolerance_s`).
+    pub fn set_slack(&mut self, slack_ns: i64) {
+        self.slack_ns = slack_ns.max(0);
+    }
+
     /// Takes every valid transform of `msg` (`is_static` for `/tf_static`); returns why the
     /// others were skipped.
     pub fn update(&mut self, msg: &TFMessage, is_static: bool) -> Vec<String> {
@@ -163,6 +168,12 @@ impl TfHistory {
         bad
     }
 
+    /// Whether `frame` has been heard, as a child or a parent of a transform.
+    pub fn knows(&self, frame: &str) -> bool {
+        let frame = frame_name(frame);
+        self.links.contains_key(frame) || self.links.values().any(|l| l.parent == frame)
+    }
+
     /// `parent → child` (parent-from-child) at `stamp`, through the tree path between them (up
     /// from each to their nearest common ancestor).
     pub fn lookup(&self, parent: &str, child: &str, stamp: Stamp) -> Result<Isometry3<f64>, TfLookupError> {
@@ -171,8 +182,7 @@ impl TfHistory {
             return Ok(Isometry3::identity());
         }
         for frame in [parent, child] {
-            let is_parent_of_some = self.links.values().any(|l| l.parent == frame);
-            if !self.links.contains_key(frame) && !is_parent_of_some {
+            if !self.knows(frame) {
                 return Err(TfLookupError::UnknownFrame { frame: frame.to_string() });
             }
         }

@@ -27,6 +27,8 @@ pub struct Topics {
     pub tf: String,
     pub tf_static: String,
     pub debug_image: String,
+    /// The pose of `node.base_frame` in the map.
+    pub base_pose: String,
     /// `initialpose` (relative, as nav2's amcl has it).
     pub initial_pose: String,
 }
@@ -58,6 +60,7 @@ impl Topics {
             tf: names.resolve(&n.tf_topic),
             tf_static: names.resolve(&n.tf_static_topic),
             debug_image: names.resolve(&n.debug_image_topic),
+            base_pose: names.resolve(&n.base_pose_topic),
             initial_pose: names.resolve(&n.initialpose_topic),
         }
     }
@@ -91,6 +94,7 @@ mod tests {
             &ns.pose_with_covariance,
             &ns.output_correspondences,
             &ns.debug_image,
+            &ns.base_pose,
         ] {
             assert!(t.starts_with("/cam0/"), "{t}");
         }

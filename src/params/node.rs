@@ -17,13 +17,27 @@ pub struct NodeParams {
     /// Parts whose `header.stamp` differ by at most this are joined into one frame
     /// (0 = exact match, as in bags).
     pub stamp_tolerance_ns: i64,
-    /// Broadcast `map → <camera frame>` on `/tf` (or `map → odom_frame`, see there).
+    /// Broadcast the localization on `tf_topic` (which transform: `tf_mode`).
     pub publish_tf: bool,
-    /// When set, broadcast `map → odom_frame` = (map→camera) · (odom→camera)⁻¹ instead (REP 105),
-    /// with `odom_frame → <camera frame>` looked up at the image's stamp through any chain of
-    /// frames heard on `tf_topic` / `tf_static_topic` (interpolated between samples); a frame
-    /// without it publishes no TF (counted). Empty: off.
+    /// Which transform is broadcast (see [`TfMode`]).
+    pub tf_mode: TfMode,
+    /// The frame the poses and TF are in (REP 105's `map`); a frame whose correspondences name
+    /// another map frame publishes no TF nor base pose (counted).
+    pub map_frame: String,
+    /// REP 105's `odom`: the TF broadcast is `map_frame → odom_frame` = (map→camera) ·
+    /// (odom→camera)⁻¹, with `odom_frame → <camera frame>` looked up at the image's stamp through
+    /// any chain of frames heard on `tf_topic` / `tf_static_topic` (interpolated between
+    /// samples). Empty: `map → camera` (as `tf_mode: map_to_camera`).
     pub odom_frame: String,
+    /// REP 105's `base_link`: `base_pose_topic` is its pose in the map, map→camera ·
+    /// (base→camera)⁻¹ with base→camera looked up at the image's stamp. Empty: no base pose.
+    pub base_frame: String,
+    /// geometry_msgs/PoseStamped of `base_frame` in `map_frame`, published when the chain
+    /// base → camera is known.
+    pub base_pose_topic: String,
+    /// The last `map → odom` is sent again at this rate, stamped `transform_tolerance_s` after
+    /// the node's clock (as amcl does between updates); 0: only once per localized frame.
+    pub tf_publish_rate_hz: f64,
     /// `map → odom` is stamped this far after the image (future-dated, as nav2's amcl does, so
     /// consumers can transform data up to then), and an odom chain may be this much older or newer
     /// than the image and still be used, seconds.
@@ -71,6 +85,31 @@ pub struct NodeParams {
     pub use_sim_time: bool,
 }
 
+/// Which transform the node broadcasts on `/tf` (REP 105).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TfMode {
+    /// `map → odom` once `odom_frame` has been heard on `/tf` or `/tf_static`; before that (a
+    /// camera without odometry, a bag) `map → camera`, with a warning the first time.
+    #[default]
+    Auto,
+    /// `map → odom` only: a frame whose `odom → camera` is unknown at its stamp publishes no TF
+    /// (counted as `error.no_odom_transform`, logged).
+    MapToOdom,
+    /// `map → camera`: the camera's pose as a transform (the camera frame must have no other parent).
+    MapToCamera,
+}
+
+impl TfMode {
+    pub fn name(self) -> &'static str {
+        match self {
+            TfMode::Auto => "auto",
+            TfMode::MapToOdom => "map_to_odom",
+            TfMode::MapToCamera => "map_to_camera",
+        }
+    }
+}
+
 /// How the map topic is subscribed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -93,7 +132,12 @@ impl Default for NodeParams {
             frame_timeout_ms: 500,
             stamp_tolerance_ns: 0,
             publish_tf: true,
-            odom_frame: String::new(),
+            tf_mode: TfMode::Auto,
+            map_frame: "map".into(),
+            odom_frame: "odom".into(),
+            base_frame: "base_link".into(),
+            base_pose_topic: "angle_i2p/base_pose".into(),
+            tf_publish_rate_hz: 20.0,
             transform_tolerance_s: 0.1,
             require_map: true,
             expect_depth_prior: true,

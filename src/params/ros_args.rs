@@ -43,7 +43,9 @@ pub struct RosArgs {
     pub log_level: Option<LogLevel>,
     /// `-e`/`--enclave`: accepted; DDS security is not built in, so it has no effect (logged).
     pub enclave: Option<String>,
-    /// Accepted logging options that have no effect here (e.g. `--disable-rosout-logs`).
+    /// `--enable-rosout-logs` / `--disable-rosout-logs` (the last wins); rosout is on unless disabled.
+    pub rosout: Option<bool>,
+    /// Accepted logging options that have no effect here (e.g. `--disable-stdout-logs`).
     pub ignored: Vec<String>,
 }
 
@@ -151,9 +153,9 @@ impl RosArgs {
                 }
                 "-e" | "--enclave" => out.enclave = Some(value(tok)?),
                 "--log-config-file" => out.ignored.push(format!("{tok} {}", value(tok)?)),
-                "--enable-rosout-logs"
-                | "--disable-rosout-logs"
-                | "--enable-stdout-logs"
+                "--enable-rosout-logs" => out.rosout = Some(true),
+                "--disable-rosout-logs" => out.rosout = Some(false),
+                "--enable-stdout-logs"
                 | "--disable-stdout-logs"
                 | "--enable-external-lib-logs"
                 | "--disable-external-lib-logs" => out.ignored.push(tok.to_string()),
@@ -271,13 +273,15 @@ mod tests {
             "-e",
             "/cam0",
             "--disable-rosout-logs",
+            "--disable-stdout-logs",
             "--log-level",
             "angle_i2p:=debug",
         ])
         .unwrap();
         assert_eq!(a.log_level, Some(LogLevel::Debug));
         assert_eq!(a.enclave.as_deref(), Some("/cam0"));
-        assert_eq!(a.ignored, vec!["--disable-rosout-logs".to_string()]);
+        assert_eq!(a.rosout, Some(false));
+        assert_eq!(a.ignored, vec!["--disable-stdout-logs".to_string()]);
         let e = RosArgs::parse(&["--ros-args", "--log-level", "loud"]).unwrap_err();
         assert!(e.to_string().contains("loud"), "{e}");
         let e = RosArgs::parse(&["--ros-args", "--enclave"]).unwrap_err();

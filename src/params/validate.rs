@@ -91,6 +91,7 @@ impl AppParams {
         real("node.diagnostics_window_s", n.diagnostics_window_s, Range::Positive)?;
         real("node.min_rate_hz", n.min_rate_hz, Range::NonNegative)?;
         real("node.transform_tolerance_s", n.transform_tolerance_s, Range::NonNegative)?;
+        real("node.tf_publish_rate_hz", n.tf_publish_rate_hz, Range::NonNegative)?;
         at_least("node.queue_depth", n.queue_depth as u64, 1, "at least 1")
     }
 }
@@ -203,6 +204,7 @@ mod tests {
             ("node.queue_depth", Box::new(|p| p.node.queue_depth = 0)),
             ("node.diagnostics_window_s", Box::new(|p| p.node.diagnostics_window_s = 0.0)),
             ("node.min_rate_hz", Box::new(|p| p.node.min_rate_hz = f64::INFINITY)),
+            ("node.tf_publish_rate_hz", Box::new(|p| p.node.tf_publish_rate_hz = -1.0)),
         ];
         for (key, set) in cases {
             let mut p = AppParams::default();
