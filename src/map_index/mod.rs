@@ -180,7 +180,8 @@ impl MapIndex {
             None => self.nearest(&q.cast::<f32>()),
             Some(radius) => self.nearest_within(&q.cast::<f32>(), radius),
         };
-        let nearest: Vec<Option<usize>> = queries.iter().map(nearest_one).collect();
+        // In parallel: on a building, the first searches near a place build its voxels' trees.
+        let nearest: Vec<Option<usize>> = queries.par_iter().map(nearest_one).collect();
         let which: Vec<usize> = nearest.iter().flatten().copied().collect();
         let mut normals = self.normals.get(self.search(), &self.points, NORMAL_NEIGHBOURS, &which).into_iter();
         nearest.iter().map(|n| n.and_then(|_| normals.next())).collect()
