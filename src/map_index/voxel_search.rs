@@ -22,7 +22,8 @@ struct Found {
     map_index: u32,
 }
 
-/// Searched voxels at most by coordinates; beyond it the occupied voxels are scanned instead.
+/// Voxel cells in the box from `lo` to `hi` (inclusive; 0 when empty): when there are more of
+/// them than occupied voxels, a search scans the occupied voxels instead of the cells.
 fn cells_in(lo: &[i64; 3], hi: &[i64; 3]) -> u128 {
     (0..3).map(|a| (hi[a] - lo[a] + 1).max(0) as u128).product()
 }
