@@ -222,3 +222,14 @@ fn the_background_build_hands_over_the_index() {
     assert!(Arc::ptr_eq(&done.map, &map));
     assert!(!background.is_pending());
 }
+
+#[test]
+fn the_voxel_of_a_coordinate_is_its_floor() {
+    let values =
+        [0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 2.999_999, -2.000_001, 1e7 + 0.5, -1e7 - 0.5, 3e9, -3e9, 1e30, -1e30];
+    for t in
+        values.into_iter().chain([f32::INFINITY, f32::NEG_INFINITY, f32::NAN, f32::MIN_POSITIVE, -f32::MIN_POSITIVE])
+    {
+        assert_eq!(voxels::floor_to_int(t), t.floor() as i64, "{t}");
+    }
+}
