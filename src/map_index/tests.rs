@@ -233,3 +233,16 @@ fn the_voxel_of_a_coordinate_is_its_floor() {
         assert_eq!(voxels::floor_to_int(t), t.floor() as i64, "{t}");
     }
 }
+
+#[test]
+fn a_buildings_voxel_trees_can_be_built_ahead_of_the_frames() {
+    let index = building(cloud(20_000));
+    assert_eq!(index.grid().built_trees(), 0, "loading builds none");
+    index.nearest_normals(&[Point3::new(20.0, 15.0, 0.0)]);
+    let after_a_search = index.grid().built_trees();
+    assert!(after_a_search >= 1 && after_a_search < index.grid().voxel_count());
+    assert_eq!(index.grid().build_trees_while(|| false), 0, "stops when no longer wanted");
+    let rest = index.grid().build_trees_while(|| true);
+    assert_eq!(rest + after_a_search, index.grid().voxel_count());
+    assert_eq!(index.grid().built_trees(), index.grid().voxel_count());
+}

@@ -170,3 +170,27 @@ impl VoxelGrid {
         Some(nearest_sq.sqrt())
     }
 }
+
+impl VoxelGrid {
+    /// Builds the per-voxel trees not built yet, one voxel after another (on the caller's
+    /// thread), for as long as `wanted` says; returns how many it built. A node runs it beside
+    /// its frames after a new map, so that the first frames do not pay for them.
+    pub fn build_trees_while(&self, wanted: impl Fn() -> bool) -> usize {
+        let mut built = 0;
+        for (v, tree) in self.trees.iter().enumerate() {
+            if !wanted() {
+                break;
+            }
+            if tree.get().is_none() {
+                self.voxel_tree(v);
+                built += 1;
+            }
+        }
+        built
+    }
+
+    /// Per-voxel trees built so far.
+    pub fn built_trees(&self) -> usize {
+        self.trees.iter().filter(|t| t.get().is_some()).count()
+    }
+}
