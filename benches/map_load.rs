@@ -42,7 +42,7 @@ fn bench(c: &mut Criterion) {
         }
         let (frame, _) = run.frames(0..1).pop().expect("one frame");
         let pose = frame.ground_truth.and_then(|g| g.pose).expect("a synthetic frame has its pose");
-        let view = View { pose: &pose, intrinsics: &frame.intrinsics, range_m: verify.render_range_m, near_m: 0.05 };
+        let view = View { pose: &pose, intrinsics: &frame.intrinsics, range_m: verify.cull_range_m, near_m: 0.05 };
         group.bench_with_input(BenchmarkId::new("points_in_view", n), &index, |b, i| {
             b.iter(|| i.visible(black_box(&view), verify.max_map_points).len())
         });

@@ -36,9 +36,13 @@ pub struct VerifyParams {
     pub min_trust: f64,
     /// Map points rendered, at most (an even subsample of the map, or of what is in view).
     pub max_map_points: usize,
-    /// A map larger than this (bounding-box diagonal, m) is culled per candidate pose: only its
-    /// points within this range in the view frustum are rendered ([`crate::map_index`]).
-    pub render_range_m: f64,
+    /// A map of more points than this many render budgets (`max_map_points`) is culled per
+    /// candidate pose: only its points in the view frustum within `cull_range_m` are rendered,
+    /// thinned to the budget ([`crate::map_index::MapScale`]); a smaller map renders an even
+    /// subsample of all of it.
+    pub cull_above_budgets: usize,
+    /// How far from the camera a culled render takes map points, m.
+    pub cull_range_m: f64,
     /// Side of the voxels the map is culled by, m.
     pub render_voxel_m: f64,
     /// Side of the render's image cells, pixels.
@@ -68,7 +72,8 @@ impl Default for VerifyParams {
             max_iterations: 10_000,
             min_trust: 0.7,
             max_map_points: 10_000,
-            render_range_m: 30.0,
+            cull_above_budgets: 25,
+            cull_range_m: 30.0,
             render_voxel_m: 2.0,
             cell_px: 32.0,
             splat_spacings: 0.75,

@@ -1,5 +1,6 @@
 //! Building scale from the command line: `synth --preset building` with a chosen map size makes
-//! a bag that replays and evaluates (the map is wide enough that verification culls it).
+//! a bag that replays and evaluates as a building (more points than `verify.cull_above_budgets`
+//! render budgets: verification culls the map, normals come from the per-voxel trees).
 
 use std::process::Command;
 
@@ -22,8 +23,12 @@ fn a_building_bag_replays_and_evaluates() {
         .unwrap_or_else(|| panic!("no map size in {made:?}"));
     assert!((135_000..165_000).contains(&points), "{made}");
     assert!(made.contains("6 frames"), "{made}");
-    let text =
-        run_ok(Command::new(binary()).arg("replay").arg(&bag).arg("--out").arg(&out).args(["--method", "consistency"]));
+    let text = run_ok(Command::new(binary()).arg("replay").arg(&bag).arg("--out").arg(&out).args([
+        "--method",
+        "consistency",
+        "-p",
+        "verify.cull_above_budgets:=5",
+    ]));
     assert!(text.contains("6 frames"), "{text}");
     let json = run_ok(Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&out).arg("--json"));
     let v: serde_json::Value = serde_json::from_str(&json).unwrap();

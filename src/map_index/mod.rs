@@ -1,18 +1,23 @@
 //! The map, indexed once when it is set and queried per frame, so that what a frame costs
 //! follows what it uses, not the size of the map:
 //!
-//! * a k-d tree over every point (nearest map point of a correspondence, and the neighbourhood
-//!   of its normal), and the normals themselves computed lazily and cached ([`LazyNormals`]);
 //! * a voxel grid with a k-d tree over its voxels ([`VoxelGrid`]), from which the verifier takes
 //!   the points a candidate pose can see — within range, in the frustum, thinned evenly to its
-//!   point budget ([`render_map`]).
+//!   point budget ([`render_map`]);
+//! * a search for the map points nearest to a point (the map point of a correspondence, and the
+//!   neighbourhood of its normal), with the normals themselves computed lazily and cached
+//!   ([`LazyNormals`]). On a map of a room it is one k-d tree over every point, built at load
+//!   beside the grid; on a map too large for one render budget ([`MapScale`]) it is the grid's
+//!   per-voxel trees, each built when a search first reaches it ([`VoxelGrid::nearest_k`]), so
+//!   loading a building's millions of points builds no tree over all of them.
 //!
-//! Both are built in parallel (the two structures on two threads, the grid's sort with rayon),
-//! behind an `Arc`: one index serves every localizer (camera) that uses the map, and a new map
-//! can be indexed on another thread while frames go on against the old one ([`swap`]).
+//! Built in parallel (the tree and the grid on two threads, the grid's sort and gather with
+//! rayon), behind an `Arc`: one index serves every localizer (camera) that uses the map, and a
+//! new map can be indexed on another thread while frames go on against the old one ([`swap`]).
 
 mod normals;
 pub mod swap;
+mod voxel_search;
 mod voxels;
 
 #[cfg(test)]
@@ -26,13 +31,13 @@ use rayon::prelude::*;
 use crate::geometry::{Intrinsics, PointIndex};
 use crate::verify::{RenderMap, VerifyParams};
 
-pub use normals::{point_normal, LazyNormals};
+pub use normals::{point_normal, LazyNormals, NearestPoints};
 pub use voxels::{PointSlice, View, VoxelGrid};
 
 /// Neighbours of a map point that define its normal (the learned rejector's n^P).
 pub const NORMAL_NEIGHBOURS: usize = 16;
 
-/// On a map wider than the render range, a correspondence takes the normal of the nearest map
+/// On a building-scale map ([`MapScale::Building`]), a correspondence takes the normal of the nearest map
 /// point within this many of the map's point spacings, or none (in open space, off every
 /// surface). Unbounded, the search for a point off the surfaces visits every map point around it:
 /// its cost would grow with the map's density. In spacings, not metres, so a sparse map (points
@@ -42,21 +47,36 @@ pub const NORMAL_SEARCH_SPACINGS: f32 = 8.0;
 /// Map points sampled (evenly) to measure the map's point spacing.
 const SPACING_SAMPLES: usize = 1000;
 
-/// How the map is bucketed for culling.
+/// How the map is bucketed for culling, and from what size it is treated as a building.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IndexSettings {
     /// Side of a culling voxel, metres.
     pub voxel_m: f32,
-    /// A map wider than this (bounding-box diagonal) looks up normals within
-    /// [`NORMAL_SEARCH_SPACINGS`] point spacings only.
-    pub bounded_search_above_m: f64,
+    /// A map of more points than this is [`MapScale::Building`].
+    pub building_above_points: usize,
 }
 
 impl IndexSettings {
-    /// The culling voxels the verification parameters ask for.
+    /// The culling voxels and the building threshold the verification parameters ask for: a
+    /// map of more than `verify.cull_above_budgets` render budgets (`verify.max_map_points`).
     pub fn from_verify(params: &VerifyParams) -> Self {
-        Self { voxel_m: params.render_voxel_m as f32, bounded_search_above_m: params.render_range_m }
+        Self {
+            voxel_m: params.render_voxel_m as f32,
+            building_above_points: params.max_map_points.saturating_mul(params.cull_above_budgets),
+        }
     }
+}
+
+/// How a map is indexed and rendered, from its size against the render budget.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MapScale {
+    /// A map a render budget covers well (a room): one k-d tree over every point, normals
+    /// looked up without bound, verification renders an even subsample of the whole map.
+    Room,
+    /// A map of many render budgets (a building): per-voxel trees built on first use, normals
+    /// looked up within [`NORMAL_SEARCH_SPACINGS`] point spacings, verification renders the
+    /// points in view at each candidate pose.
+    Building,
 }
 
 impl Default for IndexSettings {
@@ -68,7 +88,9 @@ impl Default for IndexSettings {
 /// The indexed map (see the module doc).
 pub struct MapIndex {
     points: Vec<Point3<f32>>,
-    tree: PointIndex,
+    /// One k-d tree over every point ([`MapScale::Room`]; a building searches the grid).
+    tree: Option<PointIndex>,
+    scale: MapScale,
     normals: LazyNormals,
     grid: VoxelGrid,
     /// Diagonal of the finite points' bounding box, metres (0 for fewer than two points).
@@ -83,18 +105,20 @@ impl MapIndex {
         Self::build(points, &IndexSettings::default())
     }
 
-    /// Indexes `points`: the point tree and the voxel grid are built side by side.
+    /// Indexes `points`: on a room-scale map the point tree and the voxel grid are built side
+    /// by side; a building-scale map gets the grid alone (its trees come per voxel, on use).
     pub fn build(points: Vec<Point3<f32>>, settings: &IndexSettings) -> Self {
+        let scale = if points.len() > settings.building_above_points { MapScale::Building } else { MapScale::Room };
         let (tree, grid, extent_m) = std::thread::scope(|s| {
             let grid = s.spawn(|| VoxelGrid::new(&points, settings.voxel_m));
             let extent = bounding_diagonal(&points);
-            let tree = PointIndex::new(&points);
+            let tree = (scale == MapScale::Room).then(|| PointIndex::new(&points));
             // A panicking grid build (it cannot, short of a bug) leaves an empty grid.
             (tree, grid.join().unwrap_or_default(), extent)
         });
-        let normal_search_m = (extent_m > settings.bounded_search_above_m)
-            .then(|| NORMAL_SEARCH_SPACINGS * point_spacing(&points, &tree));
-        Self { points, tree, normals: LazyNormals::default(), grid, extent_m, normal_search_m }
+        let normal_search_m =
+            (scale == MapScale::Building).then(|| NORMAL_SEARCH_SPACINGS * point_spacing(&points, &grid));
+        Self { points, tree, scale, normals: LazyNormals::default(), grid, extent_m, normal_search_m }
     }
 
     /// The map's points, in the order they were given.
@@ -110,6 +134,11 @@ impl MapIndex {
         self.points.is_empty()
     }
 
+    /// How the map is indexed and rendered.
+    pub fn scale(&self) -> MapScale {
+        self.scale
+    }
+
     /// Diagonal of the map's bounding box, metres.
     pub fn extent_m(&self) -> f64 {
         self.extent_m
@@ -121,31 +150,49 @@ impl MapIndex {
 
     /// The index of the map point nearest to `query` (`None` for an empty map).
     pub fn nearest(&self, query: &Point3<f32>) -> Option<usize> {
-        self.tree.nearest_one(query)
+        match &self.tree {
+            Some(tree) => tree.nearest_one(query),
+            None => self.grid.nearest_k(query, 1).first().copied(),
+        }
+    }
+
+    /// The index of the map point nearest to `query` within `radius`, if any.
+    fn nearest_within(&self, query: &Point3<f32>, radius: f32) -> Option<usize> {
+        match &self.tree {
+            Some(tree) => tree.nearest_within(query, radius),
+            None => self.grid.nearest_within(query, radius),
+        }
+    }
+
+    /// The search for the k nearest map points (the normals' neighbourhoods).
+    fn search(&self) -> &dyn NearestPoints {
+        match &self.tree {
+            Some(tree) => tree,
+            None => &self.grid,
+        }
     }
 
     /// For each query, the normal (arbitrary sign, unit or zero when degenerate) of the map point
-    /// nearest to it (on a map wider than the render range, within [`NORMAL_SEARCH_SPACINGS`]
-    /// point spacings);
-    /// `None` for an empty map or nothing near. Computed on first use and cached.
+    /// nearest to it (on a building-scale map, within [`NORMAL_SEARCH_SPACINGS`] point
+    /// spacings); `None` for an empty map or nothing near. Computed on first use and cached.
     pub fn nearest_normals(&self, queries: &[Point3<f64>]) -> Vec<Option<Vector3<f32>>> {
         let nearest_one = |q: &Point3<f64>| match self.normal_search_m {
             None => self.nearest(&q.cast::<f32>()),
-            Some(radius) => self.tree.nearest_within(&q.cast::<f32>(), radius),
+            Some(radius) => self.nearest_within(&q.cast::<f32>(), radius),
         };
-        let nearest: Vec<Option<usize>> = queries.iter().map(nearest_one).collect();
+        // In parallel: on a building, the first searches near a place build its voxels' trees.
+        let nearest: Vec<Option<usize>> = queries.par_iter().map(nearest_one).collect();
         let which: Vec<usize> = nearest.iter().flatten().copied().collect();
-        let mut normals = self.normals.get(&self.tree, &self.points, NORMAL_NEIGHBOURS, &which).into_iter();
+        let mut normals = self.normals.get(self.search(), &self.points, NORMAL_NEIGHBOURS, &which).into_iter();
         nearest.iter().map(|n| n.and_then(|_| normals.next())).collect()
     }
 
     /// The normal of every point, computed now (in parallel): what the lazy normals replace.
     pub fn eager_normals(&self) -> Vec<Vector3<f32>> {
+        let search = self.search();
         self.points
             .par_iter()
-            .map_init(Vec::new, |neighbours, p| {
-                point_normal(&self.tree, &self.points, p, NORMAL_NEIGHBOURS, neighbours)
-            })
+            .map_init(Vec::new, |neighbours, p| point_normal(search, &self.points, p, NORMAL_NEIGHBOURS, neighbours))
             .collect()
     }
 
@@ -170,18 +217,17 @@ impl std::fmt::Debug for MapIndex {
     }
 }
 
-/// The verifier's render map for `index`: today's even subsample of the whole map when all of it
-/// lies within the render range (a room: bit-identical renders), else the culled view of the
-/// index (a building: the points in view at each candidate pose, at the budget's density).
+/// The verifier's render map for `index`: on a room-scale map, an even subsample of the whole
+/// map (every point of it may be in view); on a building-scale one, the culled view of the index
+/// (the points in view at each candidate pose, at the budget's density).
 pub fn render_map(index: &Arc<MapIndex>, params: &VerifyParams) -> RenderMap {
-    if index.extent_m() <= params.render_range_m {
-        RenderMap::new(index.points(), params.max_map_points)
-    } else {
-        RenderMap::culled(CulledRender {
+    match index.scale() {
+        MapScale::Room => RenderMap::new(index.points(), params.max_map_points),
+        MapScale::Building => RenderMap::culled(CulledRender {
             index: Arc::clone(index),
             budget: params.max_map_points,
-            range_m: params.render_range_m,
-        })
+            range_m: params.cull_range_m,
+        }),
     }
 }
 
@@ -203,18 +249,12 @@ impl CulledRender {
 }
 
 /// The map's typical point spacing: the median distance from an even sample of its points to
-/// their nearest other point (metres; 0 for fewer than two points).
-fn point_spacing(points: &[Point3<f32>], tree: &PointIndex) -> f32 {
+/// their nearest other point in the same voxel (metres; 0 for fewer than two points).
+fn point_spacing(points: &[Point3<f32>], grid: &VoxelGrid) -> f32 {
     let step = (points.len() / SPACING_SAMPLES).max(1);
-    let mut gaps: Vec<f32> = points
-        .iter()
-        .step_by(step)
-        .filter_map(|p| {
-            let second = *tree.nearest(p, 2).get(1)?;
-            Some((points.get(second)? - p).norm())
-        })
-        .filter(|d| d.is_finite())
-        .collect();
+    let samples: Vec<usize> = (0..points.len()).step_by(step).collect();
+    let mut gaps: Vec<f32> =
+        samples.par_iter().filter_map(|&i| grid.gap_in_voxel(i, points.get(i)?)).filter(|d| d.is_finite()).collect();
     if gaps.is_empty() {
         return 0.0;
     }

@@ -4,7 +4,7 @@
 use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::sync::Arc;
 
-use super::{IndexSettings, MapIndex};
+use super::{IndexSettings, MapIndex, MapScale};
 use crate::frame::MapCloud;
 
 /// The worker's maps: the one frames are localized against, and a newer one being indexed.
@@ -60,7 +60,12 @@ impl BackgroundIndex {
         std::thread::spawn(move || {
             let index = Arc::new(MapIndex::build(map.points.clone(), &settings));
             // The receiver is gone when a newer map replaced this one: nothing to do.
-            let _ = send.send(IndexedCloud { map, index });
+            let _ = send.send(IndexedCloud { map, index: Arc::clone(&index) });
+            if index.scale() == MapScale::Building {
+                // The frames go on meanwhile; the per-voxel trees their searches would build
+                // are built here instead, until no one holds the index any more.
+                index.grid().build_trees_while(|| Arc::strong_count(&index) > 1);
+            }
         });
         self.pending = Some(receive);
     }

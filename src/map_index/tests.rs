@@ -117,11 +117,59 @@ fn lazy_normals_equal_the_eager_ones_bit_for_bit() {
     assert!(MapIndex::new(Vec::new()).nearest_normals(&queries).iter().all(Option::is_none));
 }
 
+/// Indexed as a building whatever its size.
+fn building(points: Vec<Point3<f32>>) -> MapIndex {
+    MapIndex::build(points, &IndexSettings { building_above_points: 0, ..IndexSettings::default() })
+}
+
 #[test]
-fn on_a_wide_map_normals_are_looked_up_near_the_surfaces_only() {
-    // The cloud is 50 m wide: wider than the render range, so the lookup is bounded.
-    let index = MapIndex::new(cloud(5_000));
-    assert!(index.extent_m() > VerifyParams::default().render_range_m);
+fn the_scale_follows_the_point_count_against_the_render_budget() {
+    let params = VerifyParams { max_map_points: 1_000, cull_above_budgets: 4, ..VerifyParams::default() };
+    let settings = IndexSettings::from_verify(&params);
+    assert_eq!(MapIndex::build(cloud(4_000), &settings).scale(), MapScale::Room);
+    assert_eq!(MapIndex::build(cloud(4_001), &settings).scale(), MapScale::Building);
+    // Every map of the shared val bags (66 k–203 k points) stays a room at the defaults.
+    assert!(IndexSettings::default().building_above_points >= 203_000);
+}
+
+#[test]
+fn the_per_voxel_search_finds_what_one_tree_over_the_map_finds() {
+    let points = cloud(20_000);
+    let whole = PointIndex::new(&points);
+    // Small voxels (many of them, most neighbourhoods crossing faces) and large ones.
+    for voxel_m in [0.7, 3.0] {
+        let index = MapIndex::build(points.clone(), &IndexSettings { voxel_m, building_above_points: 0 });
+        assert!(index.tree.is_none(), "a building builds no tree over every point");
+        let on_map = points.iter().step_by(97).copied();
+        let off_map = [Point3::new(20.0, 15.0, 1.5), Point3::new(-30.0, 90.0, 40.0), Point3::new(40.0, 30.0, 3.0)];
+        for q in on_map.chain(off_map) {
+            for k in [1, 2, NORMAL_NEIGHBOURS, 200] {
+                assert_eq!(index.grid().nearest_k(&q, k), whole.nearest(&q, k), "{k} nearest to {q:?}");
+            }
+            for radius in [0.05, 0.5, 5.0] {
+                assert_eq!(index.grid().nearest_within(&q, radius), whole.nearest_within(&q, radius), "{q:?} {radius}");
+            }
+        }
+    }
+    let index = building(points.clone());
+    assert!(index.grid().nearest_k(&Point3::new(f32::NAN, 0.0, 0.0), 3).is_empty());
+    assert_eq!(index.grid().nearest_k(&Point3::origin(), 50_000).len(), points.len(), "at most the map");
+    assert!(building(Vec::new()).grid().nearest_k(&Point3::origin(), 3).is_empty());
+}
+
+#[test]
+fn a_buildings_lazy_normals_are_the_rooms() {
+    let points = cloud(5_000);
+    let room = MapIndex::new(points.clone());
+    let building = building(points.clone());
+    assert_eq!(building.eager_normals(), room.eager_normals());
+    let queries: Vec<Point3<f64>> = points.iter().step_by(11).map(|p| p.cast::<f64>()).collect();
+    assert_eq!(building.nearest_normals(&queries), room.nearest_normals(&queries));
+}
+
+#[test]
+fn on_a_building_normals_are_looked_up_near_the_surfaces_only() {
+    let index = building(cloud(5_000));
     let on_floor = Point3::new(20.0, 15.0, 0.0);
     let floor_point = index.points()[index.nearest(&on_floor.cast()).unwrap()];
     let near = floor_point.cast::<f64>() + Vector3::new(0.0, 0.0, 0.1);
@@ -136,7 +184,7 @@ fn the_bounded_normal_search_scales_with_the_maps_point_spacing() {
     // The same wide cloud at 3× the size (points 3× further apart): a point 1.5 m off the floor
     // (0.5 m at the original size) still finds the floor's normal, and open space still none.
     let sparse: Vec<Point3<f32>> = cloud(5_000).iter().map(|p| Point3::from(p.coords * 3.0)).collect();
-    let index = MapIndex::new(sparse);
+    let index = building(sparse);
     let on_floor = Point3::new(60.0, 45.0, 0.0);
     let floor_point = index.points()[index.nearest(&on_floor.cast()).unwrap()];
     let near = floor_point.cast::<f64>() + Vector3::new(0.0, 0.0, 1.5);
@@ -147,16 +195,18 @@ fn the_bounded_normal_search_scales_with_the_maps_point_spacing() {
 }
 
 #[test]
-fn a_map_within_the_render_range_renders_as_before() {
-    let small: Vec<_> = cloud(20_000).into_iter().map(|p| Point3::new(p.x / 10.0, p.y / 10.0, p.z)).collect();
+fn a_room_scale_map_renders_as_before() {
+    // Whatever its width (here 50 m): a map the render budget covers renders all of it.
+    let points = cloud(20_000);
     let params = VerifyParams::default();
-    let index = Arc::new(MapIndex::new(small.clone()));
-    assert!(index.extent_m() < params.render_range_m);
-    let flat = RenderMap::new(&small, params.max_map_points);
+    let index = Arc::new(MapIndex::new(points.clone()));
+    assert_eq!(index.scale(), MapScale::Room);
+    let flat = RenderMap::new(&points, params.max_map_points);
     let chosen = render_map(&index, &params);
     assert_eq!(format!("{chosen:?}"), format!("{flat:?}"), "the room-scale render map is today's");
-    let big = Arc::new(MapIndex::new(cloud(20_000)));
-    let params = VerifyParams { render_range_m: 20.0, ..params };
+    let params = VerifyParams { max_map_points: 1_000, cull_above_budgets: 10, ..params };
+    let big = Arc::new(MapIndex::build(points, &IndexSettings::from_verify(&params)));
+    assert_eq!(big.scale(), MapScale::Building);
     assert_eq!(render_map(&big, &params).len(), 20_000, "a building is culled from the whole index");
 }
 
@@ -171,4 +221,28 @@ fn the_background_build_hands_over_the_index() {
     assert_eq!(done.index.len(), 2_000);
     assert!(Arc::ptr_eq(&done.map, &map));
     assert!(!background.is_pending());
+}
+
+#[test]
+fn the_voxel_of_a_coordinate_is_its_floor() {
+    let values =
+        [0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 2.999_999, -2.000_001, 1e7 + 0.5, -1e7 - 0.5, 3e9, -3e9, 1e30, -1e30];
+    for t in
+        values.into_iter().chain([f32::INFINITY, f32::NEG_INFINITY, f32::NAN, f32::MIN_POSITIVE, -f32::MIN_POSITIVE])
+    {
+        assert_eq!(voxels::floor_to_int(t), t.floor() as i64, "{t}");
+    }
+}
+
+#[test]
+fn a_buildings_voxel_trees_can_be_built_ahead_of_the_frames() {
+    let index = building(cloud(20_000));
+    assert_eq!(index.grid().built_trees(), 0, "loading builds none");
+    index.nearest_normals(&[Point3::new(20.0, 15.0, 0.0)]);
+    let after_a_search = index.grid().built_trees();
+    assert!(after_a_search >= 1 && after_a_search < index.grid().voxel_count());
+    assert_eq!(index.grid().build_trees_while(|| false), 0, "stops when no longer wanted");
+    let rest = index.grid().build_trees_while(|| true);
+    assert_eq!(rest + after_a_search, index.grid().voxel_count());
+    assert_eq!(index.grid().built_trees(), index.grid().voxel_count());
 }

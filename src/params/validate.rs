@@ -128,7 +128,8 @@ impl LocalizerParams {
         at_least("verify.max_iterations", v.max_iterations as u64, 1, "at least 1")?;
         at_least("verify.max_map_points", v.max_map_points as u64, 1, "at least 1")?;
         real("verify.cell_px", v.cell_px, Range::Positive)?;
-        real("verify.render_range_m", v.render_range_m, Range::Positive)?;
+        at_least("verify.cull_above_budgets", v.cull_above_budgets as u64, 1, "at least 1")?;
+        real("verify.cull_range_m", v.cull_range_m, Range::Positive)?;
         real("verify.render_voxel_m", v.render_voxel_m, Range::Positive)?;
         real("verify.tolerance", v.tolerance, Range::Positive)?;
         real("verify.coverage_weight", v.coverage_weight, Range::NonNegative)?;

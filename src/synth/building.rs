@@ -202,8 +202,7 @@ pub fn write_bag(dir: &Path, topics: &TopicMap, config: &SynthConfig) -> Result<
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map_index::MapIndex;
-    use crate::verify::VerifyParams;
+    use crate::map_index::{MapIndex, MapScale};
 
     fn building(frames: usize, map_points: usize) -> SynthRun {
         let preset = SynthConfig::preset("building").expect("building preset");
@@ -233,9 +232,9 @@ mod tests {
         );
         let frames = |run: &SynthRun| run.frames(0..2).into_iter().map(|(f, _)| f.correspondences).collect::<Vec<_>>();
         assert_eq!(frames(&sparse), frames(&dense));
-        // A building is wider than the render range: its verification culls.
+        // A building of 300 000 points is more than the render budget covers: its verification culls.
         let index = MapIndex::new(dense.map().points.clone());
-        assert!(index.extent_m() > VerifyParams::default().render_range_m, "{}", index.extent_m());
+        assert_eq!(index.scale(), MapScale::Building, "{} points", index.len());
     }
 
     #[test]
