@@ -8,22 +8,31 @@
 //! times the matcher's confidence by default), which need no detector.
 
 use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
 
 use crate::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix, PairMetric};
 use crate::geometry::{centroid, PointIndex};
 
-/// Graph sizes and the θ sensitivity.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Graph sizes and the θ sensitivity: the `network.neighbours`, `network.keypoints`,
+/// `network.theta` and `network.sigma_d` parameters ([`super::network_params::NetworkParams`]
+/// holds this struct flattened, so the keys sit directly under `network`). They must match the
+/// training export.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct GraphParams {
     /// K: correspondences per local node.
     pub neighbours: usize,
     /// M: global keypoints.
     pub keypoints: usize,
+    /// The graphs' θ: `angle` (eq. 5-7) or `distance` (the ablation).
     pub theta: PairMetric,
     /// σ_d of eq. (7) (angle θ).
     pub sigma_d: f64,
-    /// Distance θ tolerance: `sigma_abs + sigma_rel·length` (m).
+    /// Distance θ tolerance: `sigma_abs + sigma_rel·length` (m). Fixed, not parameters: only the
+    /// distance ablation reads them, and its models were exported with these values.
+    #[serde(skip)]
     pub sigma_abs: f64,
+    #[serde(skip)]
     pub sigma_rel: f64,
 }
 

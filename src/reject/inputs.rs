@@ -86,7 +86,7 @@ pub fn build_inputs(
             &image,
             &geometry.map_points,
             &keypoint_ranks(&spectral_scores, geometry, params),
-            &params.graph(),
+            &params.graph,
         ),
         spectral_scores,
         matcher_scores: geometry.matcher_scores.clone(),
