@@ -6,6 +6,7 @@
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::scale_votes::ScaleVotes;
 use super::PriorSpace;
 use crate::rng::SplitMix64;
 
@@ -184,7 +185,7 @@ pub fn estimate_scale_shift(
             };
             if img_len2 > 1e-18 {
                 // log(scale) = ½·(log ‖q_i − q_j‖² − log ‖o_i − o_j‖²)
-                votes.add(0.5 * (c.log_map_len2 - img_len2.ln()));
+                votes.add_half_log_ratio(c.log_map_len2, img_len2);
             }
         }
         votes.densest().map(|(count, log_scale)| Vote { count, scale: log_scale.exp(), shift: t })
@@ -302,52 +303,6 @@ fn refine_scale_shift(data: &PriorPairs, params: &ScaleShiftParams, est: &mut Sc
     }
 }
 
-/// Votes on log(scale) in a fine histogram; the densest window of the vote width wins.
-pub(crate) struct ScaleVotes {
-    bins: Vec<u32>,
-    /// Bins per vote window.
-    window: usize,
-    bin_width: f64,
-}
-
-impl ScaleVotes {
-    /// log-scales outside ±`LOG_RANGE` (a factor of ~3000) do not vote.
-    const LOG_RANGE: f64 = 8.0;
-    const BINS_PER_WINDOW: usize = 4;
-
-    pub(crate) fn new(window: f64) -> Self {
-        let bin_width = window.max(1e-4) / Self::BINS_PER_WINDOW as f64;
-        let n = (2.0 * Self::LOG_RANGE / bin_width).ceil() as usize + 1;
-        Self { bins: vec![0; n], window: Self::BINS_PER_WINDOW, bin_width }
-    }
-
-    fn clear(&mut self) {
-        self.bins.fill(0);
-    }
-
-    pub(crate) fn add(&mut self, log_scale: f64) {
-        let k = (log_scale + Self::LOG_RANGE) / self.bin_width;
-        if k >= 0.0 && (k as usize) < self.bins.len() {
-            self.bins[k as usize] += 1;
-        }
-    }
-
-    /// (votes, centre log-scale) of the densest window.
-    pub(crate) fn densest(&self) -> Option<(usize, f64)> {
-        let mut count: u32 = self.bins[..self.window.min(self.bins.len())].iter().sum();
-        let (mut best, mut best_start) = (count, 0);
-        for start in 1..=self.bins.len().saturating_sub(self.window) {
-            count = count + self.bins[start + self.window - 1] - self.bins[start - 1];
-            if count > best {
-                best = count;
-                best_start = start;
-            }
-        }
-        (best > 0)
-            .then(|| (best as usize, (best_start as f64 + self.window as f64 / 2.0) * self.bin_width - Self::LOG_RANGE))
-    }
-}
-
 fn median(mut v: Vec<f64>) -> Option<f64> {
     if v.is_empty() {
         return None;
@@ -425,16 +380,5 @@ mod tests {
         let mm: Vec<_> = map.iter().map(|q| Point3::from(q.coords * 1000.0)).collect();
         let millimetres = estimate_scale_shift(&rays, &prior, &mm, &[], PriorSpace::Depth, &p).unwrap();
         assert!((millimetres.scale / metres.scale - 1000.0).abs() < 1.0, "{metres:?} {millimetres:?}");
-    }
-
-    #[test]
-    fn scale_votes_find_the_mode() {
-        let mut votes = ScaleVotes::new(0.06);
-        for v in [0.0, 0.5, 0.51, 0.52, 0.53, -2.0, 9.0] {
-            votes.add(v);
-        }
-        let (count, centre) = votes.densest().unwrap();
-        assert_eq!(count, 4);
-        assert!((centre - 0.515).abs() < 0.03, "{centre}");
     }
 }

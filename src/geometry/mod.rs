@@ -5,6 +5,7 @@ pub mod affine_fit;
 pub mod align;
 mod frame_geometry;
 pub mod normals;
+mod scale_votes;
 
 pub use affine_fit::{fit_increasing_affine, AffineFit, AffineFitParams, AffineMap};
 pub use frame_geometry::{FrameGeometry, FrameParts, GeometryScratch};
