@@ -174,20 +174,7 @@ pub fn estimate_scale_shift(
 
     let mut votes = ScaleVotes::new(params.log_scale_window);
     let mut vote = |t: f64| -> Option<Vote> {
-        votes.clear();
-        for c in &terms {
-            let (Some(ui), Some(uj)) = (unit_depth(space, c.xi, t), unit_depth(space, c.xj, t)) else { continue };
-            let img_len2 = match space {
-                // ‖a + t·b‖², a = r_i x_i − r_j x_j and b = r_i − r_j formed once (in f64: the
-                // difference of neighbouring pixels' rays is small, and its digits must survive).
-                PriorSpace::Depth => c.aa + t * (2.0 * c.ab + t * c.bb),
-                PriorSpace::Disparity => (c.ri * ui - c.rj * uj).norm_squared(),
-            };
-            if img_len2 > 1e-18 {
-                // log(scale) = ½·(log ‖q_i − q_j‖² − log ‖o_i − o_j‖²)
-                votes.add_half_log_ratio(c.log_map_len2, img_len2);
-            }
-        }
+        cast_votes(&terms, space, t, &mut votes);
         votes.densest().map(|(count, log_scale)| Vote { count, scale: log_scale.exp(), shift: t })
     };
     let best = search_shift(&mut vote, params.shift_range * median_x, params)?;
@@ -203,6 +190,36 @@ pub fn estimate_scale_shift(
     let prior_pairs = PriorPairs { rays, prior, pairs: &pairs, map_len: &map_len, min_len };
     refine_scale_shift(&prior_pairs, params, &mut estimate);
     (estimate.scale.is_finite() && estimate.scale > 0.0 && estimate.shift.is_finite()).then_some(estimate)
+}
+
+/// Every pair's vote for log(scale) = ½·(log ‖q_i − q_j‖² − log ‖o_i − o_j‖²) at shift `t`, into
+/// `votes` (cleared first); a pair votes when both its depths are positive. One loop per space,
+/// so the hot depth-space one tests no space per pair.
+fn cast_votes(terms: &[PairTerms], space: PriorSpace, t: f64, votes: &mut ScaleVotes) {
+    votes.clear();
+    match space {
+        PriorSpace::Depth => {
+            for c in terms {
+                if c.xi + t > 0.0 && c.xj + t > 0.0 {
+                    // ‖a + t·b‖², a = r_i x_i − r_j x_j and b = r_i − r_j formed once (in f64: the
+                    // difference of neighbouring pixels' rays is small, and its digits must survive).
+                    let img_len2 = c.aa + t * (2.0 * c.ab + t * c.bb);
+                    if img_len2 > 1e-18 {
+                        votes.add_half_log_ratio(c.log_map_len2, img_len2);
+                    }
+                }
+            }
+        }
+        PriorSpace::Disparity => {
+            for c in terms {
+                let (Some(ui), Some(uj)) = (unit_depth(space, c.xi, t), unit_depth(space, c.xj, t)) else { continue };
+                let img_len2 = (c.ri * ui - c.rj * uj).norm_squared();
+                if img_len2 > 1e-18 {
+                    votes.add_half_log_ratio(c.log_map_len2, img_len2);
+                }
+            }
+        }
+    }
 }
 
 /// The densest vote at one candidate shift.

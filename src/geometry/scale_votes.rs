@@ -11,6 +11,11 @@ pub(crate) struct ScaleVotes {
     /// Bins per vote window.
     window: usize,
     bin_width: f64,
+    /// 1/`bin_width` and the half-width, in bins, of a vote's bracket: ½·(ln error)/width plus
+    /// the roundings by which the bracket's k (multiplied by the inverse) and the exact one
+    /// (divided, with libm's ln) can differ — a few ulps of numbers below ~1e4.
+    inverse_width: f64,
+    margin: f64,
     ln: TableLn,
 }
 
@@ -24,7 +29,14 @@ impl ScaleVotes {
     pub(crate) fn new(window: f64) -> Self {
         let bin_width = window.max(1e-4) / Self::BINS_PER_WINDOW as f64;
         let n = (2.0 * Self::LOG_RANGE / bin_width).ceil() as usize + 1;
-        Self { bins: vec![0; n], window: Self::BINS_PER_WINDOW, bin_width, ln: TableLn::new() }
+        Self {
+            bins: vec![0; n],
+            window: Self::BINS_PER_WINDOW,
+            bin_width,
+            inverse_width: 1.0 / bin_width,
+            margin: 0.5 * Self::LN_SLACK / bin_width + 1e-9,
+            ln: TableLn::new(),
+        }
     }
 
     pub(crate) fn clear(&mut self) {
@@ -60,21 +72,20 @@ impl ScaleVotes {
     /// falls in one bin (or all outside the histogram); `None` when undecided.
     fn bracketed_bin(&self, log_a: f64, b: f64) -> Option<Option<usize>> {
         let ln_b = self.ln.ln(b)?;
-        let k = (0.5 * (log_a - ln_b) + Self::LOG_RANGE) / self.bin_width;
-        // The exact k differs by ½·(ln error)/width plus a few roundings of numbers below ~1e4.
-        let margin = 0.5 * Self::LN_SLACK / self.bin_width + 1e-9;
-        let (lo, hi) = (k - margin, k + margin);
-        if !(lo.is_finite() && hi.is_finite()) {
-            return None;
-        }
+        let k = (0.5 * (log_a - ln_b) + Self::LOG_RANGE) * self.inverse_width;
+        let (lo, hi) = (k - self.margin, k + self.margin);
         if hi < 0.0 {
             return Some(None);
         }
-        let bin = lo.floor();
-        if lo < 0.0 || hi.floor() != bin {
+        if !(lo >= 0.0) {
             return None;
         }
-        Some(((bin as usize) < self.bins.len()).then_some(bin as usize))
+        // Both non-negative: `as` truncates, which is the floor (and saturates as `bin` does).
+        let (first, last) = (lo as usize, hi as usize);
+        if first != last {
+            return None;
+        }
+        Some((first < self.bins.len()).then_some(first))
     }
 
     /// (votes, centre log-scale) of the densest window.
@@ -119,11 +130,12 @@ impl TableLn {
 
     /// `None` for zero, negative, subnormal or non-finite x.
     fn ln(&self, x: f64) -> Option<f64> {
-        if !(x.is_normal() && x > 0.0) {
+        let bits = x.to_bits();
+        let biased = bits >> 52; // the sign bit set makes it over 0x7ff
+        if biased == 0 || biased >= 0x7ff {
             return None;
         }
-        let bits = x.to_bits();
-        let exponent = ((bits >> 52) & 0x7ff) as i64 - 1023;
+        let exponent = biased as i64 - 1023;
         let mantissa = f64::from_bits((bits & 0x000f_ffff_ffff_ffff) | 0x3ff0_0000_0000_0000);
         let i = ((bits >> (52 - Self::BITS)) & ((1 << Self::BITS) - 1)) as usize;
         let r = mantissa * self.inverse[i] - 1.0;
