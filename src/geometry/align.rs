@@ -205,7 +205,7 @@ fn cast_votes(terms: &[PairTerms], space: PriorSpace, t: f64, votes: &mut ScaleV
                     // difference of neighbouring pixels' rays is small, and its digits must survive).
                     let img_len2 = c.aa + t * (2.0 * c.ab + t * c.bb);
                     if img_len2 > 1e-18 {
-                        votes.add_half_log_ratio(c.log_map_len2, img_len2);
+                        votes.add(0.5 * (c.log_map_len2 - img_len2.ln()));
                     }
                 }
             }
@@ -215,7 +215,7 @@ fn cast_votes(terms: &[PairTerms], space: PriorSpace, t: f64, votes: &mut ScaleV
                 let (Some(ui), Some(uj)) = (unit_depth(space, c.xi, t), unit_depth(space, c.xj, t)) else { continue };
                 let img_len2 = (c.ri * ui - c.rj * uj).norm_squared();
                 if img_len2 > 1e-18 {
-                    votes.add_half_log_ratio(c.log_map_len2, img_len2);
+                    votes.add(0.5 * (c.log_map_len2 - img_len2.ln()));
                 }
             }
         }
