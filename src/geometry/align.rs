@@ -6,6 +6,7 @@
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::scale_votes::ScaleVotes;
 use super::PriorSpace;
 use crate::rng::SplitMix64;
 
@@ -173,20 +174,7 @@ pub fn estimate_scale_shift(
 
     let mut votes = ScaleVotes::new(params.log_scale_window);
     let mut vote = |t: f64| -> Option<Vote> {
-        votes.clear();
-        for c in &terms {
-            let (Some(ui), Some(uj)) = (unit_depth(space, c.xi, t), unit_depth(space, c.xj, t)) else { continue };
-            let img_len2 = match space {
-                // ‖a + t·b‖², a = r_i x_i − r_j x_j and b = r_i − r_j formed once (in f64: the
-                // difference of neighbouring pixels' rays is small, and its digits must survive).
-                PriorSpace::Depth => c.aa + t * (2.0 * c.ab + t * c.bb),
-                PriorSpace::Disparity => (c.ri * ui - c.rj * uj).norm_squared(),
-            };
-            if img_len2 > 1e-18 {
-                // log(scale) = ½·(log ‖q_i − q_j‖² − log ‖o_i − o_j‖²)
-                votes.add(0.5 * (c.log_map_len2 - img_len2.ln()));
-            }
-        }
+        cast_votes(&terms, space, t, &mut votes);
         votes.densest().map(|(count, log_scale)| Vote { count, scale: log_scale.exp(), shift: t })
     };
     let best = search_shift(&mut vote, params.shift_range * median_x, params)?;
@@ -202,6 +190,36 @@ pub fn estimate_scale_shift(
     let prior_pairs = PriorPairs { rays, prior, pairs: &pairs, map_len: &map_len, min_len };
     refine_scale_shift(&prior_pairs, params, &mut estimate);
     (estimate.scale.is_finite() && estimate.scale > 0.0 && estimate.shift.is_finite()).then_some(estimate)
+}
+
+/// Every pair's vote for log(scale) = ½·(log ‖q_i − q_j‖² − log ‖o_i − o_j‖²) at shift `t`, into
+/// `votes` (cleared first); a pair votes when both its depths are positive. One loop per space,
+/// so the hot depth-space one tests no space per pair.
+fn cast_votes(terms: &[PairTerms], space: PriorSpace, t: f64, votes: &mut ScaleVotes) {
+    votes.clear();
+    match space {
+        PriorSpace::Depth => {
+            for c in terms {
+                if c.xi + t > 0.0 && c.xj + t > 0.0 {
+                    // ‖a + t·b‖², a = r_i x_i − r_j x_j and b = r_i − r_j formed once (in f64: the
+                    // difference of neighbouring pixels' rays is small, and its digits must survive).
+                    let img_len2 = c.aa + t * (2.0 * c.ab + t * c.bb);
+                    if img_len2 > 1e-18 {
+                        votes.add(0.5 * (c.log_map_len2 - img_len2.ln()));
+                    }
+                }
+            }
+        }
+        PriorSpace::Disparity => {
+            for c in terms {
+                let (Some(ui), Some(uj)) = (unit_depth(space, c.xi, t), unit_depth(space, c.xj, t)) else { continue };
+                let img_len2 = (c.ri * ui - c.rj * uj).norm_squared();
+                if img_len2 > 1e-18 {
+                    votes.add(0.5 * (c.log_map_len2 - img_len2.ln()));
+                }
+            }
+        }
+    }
 }
 
 /// The densest vote at one candidate shift.
@@ -302,52 +320,6 @@ fn refine_scale_shift(data: &PriorPairs, params: &ScaleShiftParams, est: &mut Sc
     }
 }
 
-/// Votes on log(scale) in a fine histogram; the densest window of the vote width wins.
-pub(crate) struct ScaleVotes {
-    bins: Vec<u32>,
-    /// Bins per vote window.
-    window: usize,
-    bin_width: f64,
-}
-
-impl ScaleVotes {
-    /// log-scales outside ±`LOG_RANGE` (a factor of ~3000) do not vote.
-    const LOG_RANGE: f64 = 8.0;
-    const BINS_PER_WINDOW: usize = 4;
-
-    pub(crate) fn new(window: f64) -> Self {
-        let bin_width = window.max(1e-4) / Self::BINS_PER_WINDOW as f64;
-        let n = (2.0 * Self::LOG_RANGE / bin_width).ceil() as usize + 1;
-        Self { bins: vec![0; n], window: Self::BINS_PER_WINDOW, bin_width }
-    }
-
-    fn clear(&mut self) {
-        self.bins.fill(0);
-    }
-
-    pub(crate) fn add(&mut self, log_scale: f64) {
-        let k = (log_scale + Self::LOG_RANGE) / self.bin_width;
-        if k >= 0.0 && (k as usize) < self.bins.len() {
-            self.bins[k as usize] += 1;
-        }
-    }
-
-    /// (votes, centre log-scale) of the densest window.
-    pub(crate) fn densest(&self) -> Option<(usize, f64)> {
-        let mut count: u32 = self.bins[..self.window.min(self.bins.len())].iter().sum();
-        let (mut best, mut best_start) = (count, 0);
-        for start in 1..=self.bins.len().saturating_sub(self.window) {
-            count = count + self.bins[start + self.window - 1] - self.bins[start - 1];
-            if count > best {
-                best = count;
-                best_start = start;
-            }
-        }
-        (best > 0)
-            .then(|| (best as usize, (best_start as f64 + self.window as f64 / 2.0) * self.bin_width - Self::LOG_RANGE))
-    }
-}
-
 fn median(mut v: Vec<f64>) -> Option<f64> {
     if v.is_empty() {
         return None;
@@ -425,16 +397,5 @@ mod tests {
         let mm: Vec<_> = map.iter().map(|q| Point3::from(q.coords * 1000.0)).collect();
         let millimetres = estimate_scale_shift(&rays, &prior, &mm, &[], PriorSpace::Depth, &p).unwrap();
         assert!((millimetres.scale / metres.scale - 1000.0).abs() < 1.0, "{metres:?} {millimetres:?}");
-    }
-
-    #[test]
-    fn scale_votes_find_the_mode() {
-        let mut votes = ScaleVotes::new(0.06);
-        for v in [0.0, 0.5, 0.51, 0.52, 0.53, -2.0, 9.0] {
-            votes.add(v);
-        }
-        let (count, centre) = votes.densest().unwrap();
-        assert_eq!(count, 4);
-        assert!((centre - 0.515).abs() < 0.03, "{centre}");
     }
 }

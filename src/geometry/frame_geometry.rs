@@ -4,7 +4,7 @@
 use nalgebra::{Point2, Point3, Vector3};
 
 use super::align::{estimate_scale_shift, ScaleShift, ScaleShiftParams};
-use super::normals::image_normals;
+use super::normals::image_normals_into;
 use super::{DepthImage, DepthKind, Intrinsics, PointIndex, PriorSpace};
 
 /// What one frame gives its geometry: the correspondences split into pixels, map points and the
@@ -42,39 +42,62 @@ pub struct FrameGeometry {
     pub image_normals: Vec<Vector3<f64>>,
 }
 
+/// What building a frame's geometry works in besides the geometry itself (the alignment's
+/// voting inputs), kept between frames by whoever rebuilds geometry frame after frame.
+#[derive(Clone, Debug, Default)]
+pub struct GeometryScratch {
+    known: Vec<usize>,
+    rays: Vec<Vector3<f64>>,
+    prior: Vec<f64>,
+    map: Vec<Point3<f64>>,
+    flat: Vec<Point3<f32>>,
+    pairs: Vec<(u32, u32)>,
+}
+
 impl FrameGeometry {
     /// Builds the geometry of one frame's correspondences. Without a depth prior,
     /// `prior_coordinate` is all NaN and the image cloud empty; rejectors that need it report that.
     pub fn new(parts: FrameParts, kind: DepthKind, align: Option<&ScaleShiftParams>) -> Self {
-        let FrameParts { intrinsics: k, pixels, map_points, matcher_scores, depth_prior } = parts;
-        let rays = pixels.iter().map(|p| Vector3::new((p.x - k.cx) / k.fx, (p.y - k.cy) / k.fy, 1.0)).collect();
-        let prior_coordinate = match depth_prior {
-            Some(prior) => pixels
-                .iter()
-                .map(|p| prior.sample(p, k.width, k.height).map_or(f64::NAN, |v| kind.coordinate(v)))
-                .collect(),
-            None => vec![f64::NAN; pixels.len()],
-        };
-        let mut geometry = Self {
-            intrinsics: Some(k),
-            map_points,
-            matcher_scores,
-            pixels,
-            rays,
-            prior_coordinate,
-            prior_space: kind.space(),
-            scale_shift: None,
-            image_points: Vec::new(),
-            image_normals: Vec::new(),
-        };
+        let FrameParts { intrinsics, pixels, map_points, matcher_scores, depth_prior } = parts;
+        let mut geometry = Self { pixels, map_points, matcher_scores, ..Self::default() };
+        geometry.derive(intrinsics, depth_prior, kind, align, &mut GeometryScratch::default());
+        geometry
+    }
+
+    /// Everything else from `pixels`, `map_points` and `matcher_scores` (already filled): rays,
+    /// prior coordinates, the alignment, the image cloud and its normals, each refilled in its
+    /// own buffer (a geometry kept across frames allocates them once).
+    pub fn derive(
+        &mut self,
+        k: Intrinsics,
+        depth_prior: Option<&DepthImage>,
+        kind: DepthKind,
+        align: Option<&ScaleShiftParams>,
+        scratch: &mut GeometryScratch,
+    ) {
+        self.intrinsics = Some(k);
+        self.rays.clear();
+        self.rays.extend(self.pixels.iter().map(|p| Vector3::new((p.x - k.cx) / k.fx, (p.y - k.cy) / k.fy, 1.0)));
+        self.prior_coordinate.clear();
+        match depth_prior {
+            Some(prior) => self.prior_coordinate.extend(
+                self.pixels.iter().map(|p| prior.sample(p, k.width, k.height).map_or(f64::NAN, |v| kind.coordinate(v))),
+            ),
+            None => self.prior_coordinate.resize(self.pixels.len(), f64::NAN),
+        }
+        self.prior_space = kind.space();
+        self.scale_shift = None;
+        self.image_points.clear();
+        self.image_normals.clear();
         if depth_prior.is_some() {
             if let Some(params) = align {
-                geometry.scale_shift = geometry.estimate_scale_shift(params);
+                self.scale_shift = self.estimate_scale_shift(params, scratch);
             }
-            geometry.lift();
-            geometry.image_normals = image_normals(&k, depth_prior, &geometry, kind);
+            self.lift();
+            let mut normals = std::mem::take(&mut self.image_normals);
+            image_normals_into(&mut normals, &k, depth_prior, self, kind);
+            self.image_normals = normals;
         }
-        geometry
     }
 
     pub fn len(&self) -> usize {
@@ -91,26 +114,30 @@ impl FrameGeometry {
 
     /// Scale and shift of the prior from the correspondences themselves; local pairs are each
     /// pixel's nearest neighbours in the image.
-    fn estimate_scale_shift(&self, params: &ScaleShiftParams) -> Option<ScaleShift> {
-        let known: Vec<usize> = (0..self.len())
-            .filter(|&i| self.prior_coordinate[i].is_finite() && self.prior_coordinate[i] > 0.0)
-            .collect();
-        let rays: Vec<_> = known.iter().map(|&i| self.rays[i]).collect();
-        let prior: Vec<_> = known.iter().map(|&i| self.prior_coordinate[i]).collect();
-        let map: Vec<_> = known.iter().map(|&i| self.map_points[i]).collect();
-        let flat: Vec<Point3<f32>> =
-            known.iter().map(|&i| Point3::new(self.pixels[i].x as f32, self.pixels[i].y as f32, 0.0)).collect();
-        let index = PointIndex::new(&flat);
-        let neighbours = params.local_neighbours.min(params.max_local_pairs / known.len().max(1)).max(1);
-        let mut pairs = Vec::with_capacity(known.len() * neighbours);
-        for (a, p) in flat.iter().enumerate() {
+    fn estimate_scale_shift(&self, params: &ScaleShiftParams, s: &mut GeometryScratch) -> Option<ScaleShift> {
+        s.known.clear();
+        s.known.extend(
+            (0..self.len()).filter(|&i| self.prior_coordinate[i].is_finite() && self.prior_coordinate[i] > 0.0),
+        );
+        s.rays.clear();
+        s.rays.extend(s.known.iter().map(|&i| self.rays[i]));
+        s.prior.clear();
+        s.prior.extend(s.known.iter().map(|&i| self.prior_coordinate[i]));
+        s.map.clear();
+        s.map.extend(s.known.iter().map(|&i| self.map_points[i]));
+        s.flat.clear();
+        s.flat.extend(s.known.iter().map(|&i| Point3::new(self.pixels[i].x as f32, self.pixels[i].y as f32, 0.0)));
+        let index = PointIndex::new(&s.flat);
+        let neighbours = params.local_neighbours.min(params.max_local_pairs / s.known.len().max(1)).max(1);
+        s.pairs.clear();
+        for (a, p) in s.flat.iter().enumerate() {
             for b in index.nearest(p, neighbours + 1) {
                 if b != a {
-                    pairs.push((a as u32, b as u32));
+                    s.pairs.push((a as u32, b as u32));
                 }
             }
         }
-        estimate_scale_shift(&rays, &prior, &map, &pairs, self.prior_space, params)
+        estimate_scale_shift(&s.rays, &s.prior, &s.map, &s.pairs, self.prior_space, params)
     }
 
     /// The prior's map to depth: the estimated one, else the identity of its space.
@@ -121,18 +148,14 @@ impl FrameGeometry {
     /// o_i = depth(x_i)·ray_i; unknown prior depths give a NaN point.
     fn lift(&mut self) {
         let align = self.alignment();
-        self.image_points = self
-            .rays
-            .iter()
-            .zip(&self.prior_coordinate)
-            .map(|(r, &d)| {
-                let z = align.depth(d);
-                if z.is_finite() && z > 0.0 {
-                    Point3::from(r * z)
-                } else {
-                    Point3::new(f64::NAN, f64::NAN, f64::NAN)
-                }
-            })
-            .collect();
+        self.image_points.clear();
+        self.image_points.extend(self.rays.iter().zip(&self.prior_coordinate).map(|(r, &d)| {
+            let z = align.depth(d);
+            if z.is_finite() && z > 0.0 {
+                Point3::from(r * z)
+            } else {
+                Point3::new(f64::NAN, f64::NAN, f64::NAN)
+            }
+        }));
     }
 }

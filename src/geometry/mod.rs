@@ -5,9 +5,10 @@ pub mod affine_fit;
 pub mod align;
 mod frame_geometry;
 pub mod normals;
+mod scale_votes;
 
 pub use affine_fit::{fit_increasing_affine, AffineFit, AffineFitParams, AffineMap};
-pub use frame_geometry::{FrameGeometry, FrameParts};
+pub use frame_geometry::{FrameGeometry, FrameParts, GeometryScratch};
 pub use normals::{pca_normal, point_cloud_normals, prior_normals};
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};

@@ -54,6 +54,20 @@ pub fn prior_normals(
     pixels: &[Point2<f64>],
     depth_of: impl Fn(f64) -> f64,
 ) -> Vec<Vector3<f64>> {
+    let mut out = Vec::with_capacity(pixels.len());
+    prior_normals_into(&mut out, intrinsics, prior, kind, pixels, depth_of);
+    out
+}
+
+/// [`prior_normals`] appended to `out`.
+fn prior_normals_into(
+    out: &mut Vec<Vector3<f64>>,
+    intrinsics: &Intrinsics,
+    prior: &DepthImage,
+    kind: DepthKind,
+    pixels: &[Point2<f64>],
+    depth_of: impl Fn(f64) -> f64,
+) {
     // One pixel of the prior, in camera pixels.
     let step_u = intrinsics.width as f64 / prior.width as f64;
     let step_v = intrinsics.height as f64 / prior.height as f64;
@@ -62,40 +76,39 @@ pub fn prior_normals(
         let z = depth_of(kind.coordinate(value));
         (z.is_finite() && z > 0.0).then(|| intrinsics.back_project(&p, z))
     };
-    pixels
-        .iter()
-        .map(|p| {
-            let pts = (
-                lift(Point2::new(p.x - step_u, p.y)),
-                lift(Point2::new(p.x + step_u, p.y)),
-                lift(Point2::new(p.x, p.y - step_v)),
-                lift(Point2::new(p.x, p.y + step_v)),
-            );
-            let (Some(l), Some(r), Some(u), Some(d)) = pts else { return Vector3::zeros() };
-            let n = (r - l).cross(&(d - u));
-            let norm = n.norm();
-            if !(norm > 1e-12) {
-                return Vector3::zeros();
-            }
-            let mut n = n / norm;
-            // Towards the camera at the origin.
-            if n.dot(&(-l.coords)) < 0.0 {
-                n = -n;
-            }
-            n
-        })
-        .collect()
+    out.extend(pixels.iter().map(|p| {
+        let pts = (
+            lift(Point2::new(p.x - step_u, p.y)),
+            lift(Point2::new(p.x + step_u, p.y)),
+            lift(Point2::new(p.x, p.y - step_v)),
+            lift(Point2::new(p.x, p.y + step_v)),
+        );
+        let (Some(l), Some(r), Some(u), Some(d)) = pts else { return Vector3::zeros() };
+        let n = (r - l).cross(&(d - u));
+        let norm = n.norm();
+        if !(norm > 1e-12) {
+            return Vector3::zeros();
+        }
+        let mut n = n / norm;
+        // Towards the camera at the origin.
+        if n.dot(&(-l.coords)) < 0.0 {
+            n = -n;
+        }
+        n
+    }));
 }
 
 /// n^I: normals of the image cloud from the dense prior (aligned when an alignment is known),
-/// oriented towards the camera; zero without a prior.
-pub fn image_normals(
+/// oriented towards the camera; zero without a prior. Into `out` (cleared first).
+pub fn image_normals_into(
+    out: &mut Vec<Vector3<f64>>,
     intrinsics: &Intrinsics,
     prior: Option<&DepthImage>,
     geometry: &FrameGeometry,
     kind: DepthKind,
-) -> Vec<Vector3<f64>> {
-    let Some(prior) = prior else { return vec![Vector3::zeros(); geometry.len()] };
+) {
+    out.clear();
+    let Some(prior) = prior else { return out.resize(geometry.len(), Vector3::zeros()) };
     let align = geometry.alignment();
-    prior_normals(intrinsics, prior, kind, &geometry.pixels, |d| align.depth(d))
+    prior_normals_into(out, intrinsics, prior, kind, &geometry.pixels, |d| align.depth(d));
 }

@@ -170,9 +170,9 @@ impl LocalizerParams {
         real("spectral.tolerance", s.tolerance as f64, Range::Positive)?;
         real("network.tau", n.tau, Range::Unit)?;
         at_least("network.intra_threads", n.intra_threads as u64, 1, "at least 1")?;
-        at_least("network.neighbours", n.neighbours as u64, 1, "at least 1")?;
-        at_least("network.keypoints", n.keypoints as u64, 1, "at least 1")?;
-        real("network.sigma_d", n.sigma_d, Range::Positive)?;
+        at_least("network.neighbours", n.graph.neighbours as u64, 1, "at least 1")?;
+        at_least("network.keypoints", n.graph.keypoints as u64, 1, "at least 1")?;
+        real("network.sigma_d", n.graph.sigma_d, Range::Positive)?;
         at_least("network.keypoint_iterations", n.keypoint_iterations as u64, 1, "at least 1")?;
         real("align.shift_range", a.shift_range, Range::NonNegative)?;
         at_least("align.shift_steps", a.shift_steps as u64, 1, "at least 1")?;
@@ -200,7 +200,7 @@ mod tests {
             ("network.tau", Box::new(|p| p.localizer.network.tau = 1.5)),
             ("spectral.keep_ratio", Box::new(|p| p.localizer.spectral.keep_ratio = 5.0)),
             ("verify.accept", Box::new(|p| p.localizer.verify.accept = 2.0)),
-            ("network.neighbours", Box::new(|p| p.localizer.network.neighbours = 0)),
+            ("network.neighbours", Box::new(|p| p.localizer.network.graph.neighbours = 0)),
             ("limits.max_correspondences", Box::new(|p| p.limits.max_correspondences = 0)),
             ("node.queue_depth", Box::new(|p| p.node.queue_depth = 0)),
             ("node.diagnostics_window_s", Box::new(|p| p.node.diagnostics_window_s = 0.0)),

@@ -12,10 +12,12 @@ use crate::pnp::{solve_pnp_ransac, Guidance, PnpError, PnpParams, PnpSolution, P
 use crate::reject::network::{NetworkError, NetworkRejector};
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
 use crate::verify::{PriorVerifier, RenderMap};
+use scratch::FrameScratch;
 
 mod cascade;
 mod params;
 mod refine;
+mod scratch;
 
 pub use cascade::{CascadeParams, FastPathCheck};
 pub use params::LocalizerParams;
@@ -136,6 +138,8 @@ pub struct Localizer {
     rejector: Option<Box<dyn Rejector>>,
     /// The map subsample that PnP's hypotheses are rendered from for verification.
     render_map: RenderMap,
+    /// Per-frame buffers, refilled every frame (the rejector keeps its own).
+    scratch: FrameScratch,
 }
 
 impl Localizer {
@@ -147,7 +151,7 @@ impl Localizer {
             Method::Consistency => Some(Box::new(SpectralRejector::new(params.spectral.clone()))),
             Method::AngleI2p => Some(Box::new(NetworkRejector::new(params.network.clone(), params.spectral.clone())?)),
         };
-        Ok(Self { params, rejector, render_map: RenderMap::default() })
+        Ok(Self { params, rejector, render_map: RenderMap::default(), scratch: FrameScratch::default() })
     }
 
     /// The map frames are localized against (indexed here; see [`Localizer::set_map_index`]).
@@ -238,16 +242,17 @@ impl Localizer {
             Method::AngleI2p => self.params.network.alignment(&self.params.align),
             _ => Some(&self.params.align),
         };
-        let geometry = match self.rejector {
-            Some(_) => FrameGeometry::build(frame, self.params.depth_kind, align),
-            None => FrameGeometry::default(),
-        };
-        out.scale_shift = geometry.scale_shift;
+        let scratch = &mut self.scratch;
+        match self.rejector {
+            Some(_) => scratch.geometry.rebuild(frame, self.params.depth_kind, align, &mut scratch.geometry_work),
+            None => scratch.geometry = FrameGeometry::default(),
+        }
+        out.scale_shift = scratch.geometry.scale_shift;
         out.timings.geometry_ms = ms_since(t);
 
         // Rejection: scores and the kept subset, best first.
         let t = Instant::now();
-        let rejection = match self.rejector.as_mut().map(|r| r.reject(&geometry)) {
+        let rejection = match self.rejector.as_mut().map(|r| r.reject(&scratch.geometry)) {
             None => None,
             Some(Ok(r)) => Some(r),
             Some(Err(e)) => {
@@ -259,25 +264,26 @@ impl Localizer {
         out.timings.reject_ms = ms_since(t);
 
         let t = Instant::now();
-        let subset: Vec<usize> = match &rejection {
-            Some(r) => r.kept.clone(),
-            None => (0..frame.correspondences.len()).collect(),
-        };
-        let pixels: Vec<_> = subset.iter().map(|&i| frame.correspondences[i].pixel).collect();
-        let points: Vec<_> = subset.iter().map(|&i| frame.correspondences[i].point).collect();
-        let scores: Option<Vec<f32>> = rejection.as_ref().map(|r| subset.iter().map(|&i| r.scores[i]).collect());
-        let priors: Option<Vec<f64>> =
-            geometry.has_prior().then(|| subset.iter().map(|&i| geometry.prior_coordinate[i]).collect());
+        scratch.fill_pnp_inputs(frame, rejection.as_ref());
+        self.solve(frame, rejection.as_ref(), out);
+        out.timings.pnp_ms = ms_since(t);
+    }
+
+    /// PnP on the inputs in the scratch, verified against the prior; the kept set and the pose
+    /// into `out`.
+    fn solve(&self, frame: &Frame, rejection: Option<&crate::reject::Rejection>, out: &mut Localization) {
+        let scratch = &self.scratch;
         let verifier = self.verifier(frame);
         let guidance = Guidance {
-            scores: scores.as_deref(),
-            prior_depths: priors.as_deref(),
-            prior_space: geometry.prior_space,
+            scores: scratch.scores(rejection),
+            prior_depths: scratch.priors(),
+            prior_space: scratch.geometry.prior_space,
             verification: verifier.as_ref().map(|v| self.params.verify.verification(v)),
         };
         let pnp = PnpParams { seed: self.params.seed, ..self.params.pnp.for_camera(frame.intrinsics.fx) };
-        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &pixels, points: &points };
+        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &scratch.pixels, points: &scratch.points };
         let solved = solve_pnp_ransac(&problem, &guidance, &pnp);
+        let subset = &scratch.subset;
         let with_scores = |r: &crate::reject::Rejection| -> Vec<Correspondence> {
             subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect()
         };
@@ -286,7 +292,7 @@ impl Localizer {
                 if rejection.is_some() && self.params.final_refine.enabled {
                     self.refine_on_all(frame, &mut solution);
                 }
-                out.kept = match &rejection {
+                out.kept = match rejection {
                     Some(r) => with_scores(r),
                     None => subset
                         .iter()
@@ -298,7 +304,7 @@ impl Localizer {
                 self.accept(&solution, verifier.as_ref(), out);
             }
             Err(e) => {
-                if let Some(r) = &rejection {
+                if let Some(r) = rejection {
                     out.kept = with_scores(r);
                 }
                 if !(rejection.is_some() && matches!(e, PnpError::NoConsensus { .. }) && self.last_resort(frame, out)) {
@@ -306,7 +312,6 @@ impl Localizer {
                 }
             }
         }
-        out.timings.pnp_ms = ms_since(t);
     }
 
     /// The cascade's last step ([`CascadeParams::last_resort`]): whether it found the pose, which

@@ -70,25 +70,37 @@ pub fn features(
     map_normals: &[Vector3<f64>],
     rescale: bool,
 ) -> Vec<[f32; FEATURE_DIM]> {
+    let mut out = Vec::new();
+    features_into(&mut out, geometry, image_normals, map_normals, rescale);
+    out
+}
+
+/// [`features`] into `out`, reusing its allocation.
+pub fn features_into(
+    out: &mut Vec<[f32; FEATURE_DIM]>,
+    geometry: &FrameGeometry,
+    image_normals: &[Vector3<f64>],
+    map_normals: &[Vector3<f64>],
+    rescale: bool,
+) {
     let (image, map) = centred_clouds(geometry, rescale);
-    (0..geometry.len())
-        .map(|i| {
-            let c = [image[i].x, image[i].y, image[i].z, map[i].x, map[i].y, map[i].z];
-            let mut f = [0.0f32; FEATURE_DIM];
-            for k in 0..6 {
-                f[k] = c[k] as f32;
-                f[6 + k] = (c[k] / 2.0).sin() as f32;
-                f[12 + k] = (c[k] / 2.0).cos() as f32;
-            }
-            let (ni, np) =
-                (image_normals.get(i).copied().unwrap_or_default(), map_normals.get(i).copied().unwrap_or_default());
-            for k in 0..3 {
-                f[18 + k] = ni[k] as f32;
-                f[21 + k] = np[k] as f32;
-            }
-            f
-        })
-        .collect()
+    out.clear();
+    out.extend((0..geometry.len()).map(|i| {
+        let c = [image[i].x, image[i].y, image[i].z, map[i].x, map[i].y, map[i].z];
+        let mut f = [0.0f32; FEATURE_DIM];
+        for k in 0..6 {
+            f[k] = c[k] as f32;
+            f[6 + k] = (c[k] / 2.0).sin() as f32;
+            f[12 + k] = (c[k] / 2.0).cos() as f32;
+        }
+        let (ni, np) =
+            (image_normals.get(i).copied().unwrap_or_default(), map_normals.get(i).copied().unwrap_or_default());
+        for k in 0..3 {
+            f[18 + k] = ni[k] as f32;
+            f[21 + k] = np[k] as f32;
+        }
+        f
+    }));
 }
 
 #[cfg(test)]

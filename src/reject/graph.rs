@@ -8,22 +8,31 @@
 //! times the matcher's confidence by default), which need no detector.
 
 use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
 
 use crate::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix, PairMetric};
 use crate::geometry::{centroid, PointIndex};
 
-/// Graph sizes and the θ sensitivity.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Graph sizes and the θ sensitivity: the `network.neighbours`, `network.keypoints`,
+/// `network.theta` and `network.sigma_d` parameters ([`super::network_params::NetworkParams`]
+/// holds this struct flattened, so the keys sit directly under `network`). They must match the
+/// training export.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct GraphParams {
     /// K: correspondences per local node.
     pub neighbours: usize,
     /// M: global keypoints.
     pub keypoints: usize,
+    /// The graphs' θ: `angle` (eq. 5-7) or `distance` (the ablation).
     pub theta: PairMetric,
     /// σ_d of eq. (7) (angle θ).
     pub sigma_d: f64,
-    /// Distance θ tolerance: `sigma_abs + sigma_rel·length` (m).
+    /// Distance θ tolerance: `sigma_abs + sigma_rel·length` (m). Fixed, not parameters: only the
+    /// distance ablation reads them, and its models were exported with these values.
+    #[serde(skip)]
     pub sigma_abs: f64,
+    #[serde(skip)]
     pub sigma_rel: f64,
 }
 
@@ -60,68 +69,117 @@ pub struct Graphs {
     pub cross_theta: Vec<f32>,
 }
 
+impl Graphs {
+    /// Empties every array, keeping the allocations for the next frame.
+    pub fn clear(&mut self) {
+        self.local_index.clear();
+        self.local_theta.clear();
+        self.global_index.clear();
+        self.global_theta.clear();
+        self.cross_theta.clear();
+        self.nodes = 0;
+        self.neighbours = 0;
+    }
+}
+
+/// What building the graphs works in besides its output, kept between frames so that a frame
+/// allocates none of it again.
+#[derive(Clone, Debug, Default)]
+pub struct GraphScratch {
+    cloud: Vec<Point3<f32>>,
+    seeds: Vec<usize>,
+    farthest: Vec<f64>,
+    theta: ConsistencyMatrix,
+    group_image: Vec<Point3<f64>>,
+    group_map: Vec<Point3<f64>>,
+    key_image: Vec<Point3<f64>>,
+    key_map: Vec<Point3<f64>>,
+    key_unit_image: Vec<Vector3<f64>>,
+    key_unit_map: Vec<Vector3<f64>>,
+}
+
 /// Builds the graphs over `image` (o_i) and `map` (q_i) points; `scores` rank the keypoints.
 /// Image points must be finite (give correspondences without prior depth any point; their θ
 /// rows are then uninformative, not wrong-by-construction).
 pub fn build_graphs(image: &[Point3<f64>], map: &[Point3<f64>], scores: &[f32], params: &GraphParams) -> Graphs {
-    let n = image.len().min(map.len()).min(scores.len());
-    if n == 0 {
-        return Graphs::default();
-    }
-    let k = params.neighbours.min(n);
-    let m = params.keypoints.min(n);
+    let mut graphs = Graphs::default();
+    build_graphs_into(&mut graphs, image, map, scores, params, &mut GraphScratch::default());
+    graphs
+}
 
-    // Local graph: nodes by farthest-point sampling of the map points, ~2 nodes per K points.
-    let node_count = (2 * n).div_ceil(k).min(n);
-    let seeds = farthest_point_sampling(&map[..n], node_count);
-    let cloud: Vec<Point3<f32>> = map[..n].iter().map(|p| p.cast()).collect();
-    let index = PointIndex::new(&cloud);
-    let mut local_index = Vec::with_capacity(node_count * k);
-    let mut local_theta = Vec::with_capacity(node_count * k * k);
-    let mut theta = ConsistencyMatrix::default();
-    let (mut group_image, mut group_map) = (Vec::with_capacity(k), Vec::with_capacity(k));
-    for &seed in &seeds {
-        let group = index.nearest(&cloud[seed], k);
-        group_image.clear();
-        group_map.clear();
-        group_image.extend(group.iter().map(|&i| image[i]));
-        group_map.extend(group.iter().map(|&i| map[i]));
-        params.pair_theta(&group_image, &group_map, &mut theta);
-        local_index.extend(group.iter().map(|&i| i as u32));
-        local_theta.extend_from_slice(&theta.values);
+/// [`build_graphs`] into `graphs`, reusing its buffers and `scratch`'s.
+pub fn build_graphs_into(
+    graphs: &mut Graphs,
+    image: &[Point3<f64>],
+    map: &[Point3<f64>],
+    scores: &[f32],
+    params: &GraphParams,
+    scratch: &mut GraphScratch,
+) {
+    let n = image.len().min(map.len()).min(scores.len());
+    graphs.clear();
+    if n == 0 {
+        return;
     }
+    local_graph(graphs, &image[..n], &map[..n], params, scratch);
 
     // Global graph: the M best-scored correspondences.
-    let global = crate::reject::top_k(&scores[..n], m);
-    let key_image: Vec<_> = global.iter().map(|&i| image[i]).collect();
-    let key_map: Vec<_> = global.iter().map(|&i| map[i]).collect();
-    params.pair_theta(&key_image, &key_map, &mut theta);
-    let global_theta = theta.values.clone();
-
-    let cross_theta = match params.theta {
-        PairMetric::Angle => cross_angle_theta(&image[..n], &map[..n], &key_image, &key_map, params.sigma_d),
-        PairMetric::Distance => cross_distance_theta(&image[..n], &map[..n], &key_image, &key_map, params),
-    };
-    Graphs {
-        local_index,
-        nodes: seeds.len(),
-        neighbours: k,
-        local_theta,
-        global_index: global.iter().map(|&i| i as u32).collect(),
-        global_theta,
-        cross_theta,
+    let global = crate::reject::top_k(&scores[..n], params.keypoints.min(n));
+    let s = scratch;
+    s.key_image.clear();
+    s.key_image.extend(global.iter().map(|&i| image[i]));
+    s.key_map.clear();
+    s.key_map.extend(global.iter().map(|&i| map[i]));
+    params.pair_theta(&s.key_image, &s.key_map, &mut s.theta);
+    graphs.global_theta.extend_from_slice(&s.theta.values);
+    graphs.global_index.extend(global.iter().map(|&i| i as u32));
+    match params.theta {
+        PairMetric::Angle => cross_angle_theta(&image[..n], &map[..n], params.sigma_d, s, &mut graphs.cross_theta),
+        PairMetric::Distance => cross_distance_theta(&image[..n], &map[..n], s, params, &mut graphs.cross_theta),
     }
 }
 
+/// The local graph: nodes by farthest-point sampling of the map points, ~2 nodes per K points,
+/// each holding its K nearest correspondences and their θ.
+fn local_graph(
+    graphs: &mut Graphs,
+    image: &[Point3<f64>],
+    map: &[Point3<f64>],
+    params: &GraphParams,
+    s: &mut GraphScratch,
+) {
+    let n = map.len();
+    let k = params.neighbours.min(n);
+    let node_count = (2 * n).div_ceil(k).min(n);
+    farthest_point_sampling_into(map, node_count, &mut s.seeds, &mut s.farthest);
+    s.cloud.clear();
+    s.cloud.extend(map.iter().map(|p| p.cast::<f32>()));
+    let index = PointIndex::new(&s.cloud);
+    graphs.local_index.reserve(node_count * k);
+    graphs.local_theta.reserve(node_count * k * k);
+    for &seed in &s.seeds {
+        let group = index.nearest(&s.cloud[seed], k);
+        s.group_image.clear();
+        s.group_map.clear();
+        s.group_image.extend(group.iter().map(|&i| image[i]));
+        s.group_map.extend(group.iter().map(|&i| map[i]));
+        params.pair_theta(&s.group_image, &s.group_map, &mut s.theta);
+        graphs.local_index.extend(group.iter().map(|&i| i as u32));
+        graphs.local_theta.extend_from_slice(&s.theta.values);
+    }
+    graphs.nodes = s.seeds.len();
+    graphs.neighbours = k;
+}
+
 /// Eq. (7) for every (correspondence, keypoint) pair, both clouds centred on the keypoints'
-/// centroids. N × M, row-major.
+/// centroids (the keypoints are `s.key_image`/`s.key_map`). N × M, row-major, into `cross`.
 fn cross_angle_theta(
     image: &[Point3<f64>],
     map: &[Point3<f64>],
-    key_image: &[Point3<f64>],
-    key_map: &[Point3<f64>],
     sigma_d: f64,
-) -> Vec<f32> {
+    s: &mut GraphScratch,
+    cross: &mut Vec<f32>,
+) {
     let unit = |p: &Point3<f64>, c: &Point3<f64>| -> Vector3<f64> {
         let v = p - c;
         let norm = v.norm();
@@ -131,53 +189,67 @@ fn cross_angle_theta(
             Vector3::zeros()
         }
     };
-    let (ci, cp) = (centroid(key_image), centroid(key_map));
-    let key_unit_image: Vec<_> = key_image.iter().map(|p| unit(p, &ci)).collect();
-    let key_unit_map: Vec<_> = key_map.iter().map(|p| unit(p, &cp)).collect();
+    let (ci, cp) = (centroid(&s.key_image), centroid(&s.key_map));
+    s.key_unit_image.clear();
+    s.key_unit_image.extend(s.key_image.iter().map(|p| unit(p, &ci)));
+    s.key_unit_map.clear();
+    s.key_unit_map.extend(s.key_map.iter().map(|p| unit(p, &cp)));
     let inv_sigma2 = 1.0 / (sigma_d * sigma_d);
-    let mut cross = Vec::with_capacity(image.len() * key_image.len());
+    cross.reserve(image.len() * s.key_image.len());
     for (o, q) in image.iter().zip(map) {
         let (ui, up) = (unit(o, &ci), unit(q, &cp));
-        for (ki, kp) in key_unit_image.iter().zip(&key_unit_map) {
+        for (ki, kp) in s.key_unit_image.iter().zip(&s.key_unit_map) {
             let delta = ui.dot(ki).abs() - up.dot(kp).abs();
             cross.push((1.0 - delta * delta * inv_sigma2).max(0.0) as f32);
         }
     }
-    cross
 }
 
 /// Length consistency for every (correspondence, keypoint) pair, as
-/// [`distance_consistency`]. N × M, row-major.
+/// [`distance_consistency`]. N × M, row-major, into `cross`.
 fn cross_distance_theta(
     image: &[Point3<f64>],
     map: &[Point3<f64>],
-    key_image: &[Point3<f64>],
-    key_map: &[Point3<f64>],
+    s: &GraphScratch,
     params: &GraphParams,
-) -> Vec<f32> {
-    let mut cross = Vec::with_capacity(image.len() * key_image.len());
+    cross: &mut Vec<f32>,
+) {
+    cross.reserve(image.len() * s.key_image.len());
     for (o, q) in image.iter().zip(map) {
-        for (ko, kq) in key_image.iter().zip(key_map) {
+        for (ko, kq) in s.key_image.iter().zip(&s.key_map) {
             let d_map = (q - kq).norm();
             let delta = ((o - ko).norm() - d_map) / (params.sigma_abs + params.sigma_rel * d_map);
             cross.push((1.0 - delta * delta).max(0.0) as f32);
         }
     }
-    cross
 }
 
 /// `count` indices spread over `points`: start from the point farthest from the centroid, then
 /// repeatedly take the point farthest from those taken.
 pub fn farthest_point_sampling(points: &[Point3<f64>], count: usize) -> Vec<usize> {
+    let mut chosen = Vec::new();
+    farthest_point_sampling_into(points, count, &mut chosen, &mut Vec::new());
+    chosen
+}
+
+/// [`farthest_point_sampling`] into `chosen`, with `distance` as its working buffer.
+fn farthest_point_sampling_into(
+    points: &[Point3<f64>],
+    count: usize,
+    chosen: &mut Vec<usize>,
+    distance: &mut Vec<f64>,
+) {
+    chosen.clear();
     let count = count.min(points.len());
     if count == 0 {
-        return Vec::new();
+        return;
     }
     let c = centroid(points);
     let first =
         (0..points.len()).max_by(|&a, &b| (points[a] - c).norm_squared().total_cmp(&(points[b] - c).norm_squared()));
-    let mut chosen = vec![first.unwrap_or(0)];
-    let mut distance: Vec<f64> = points.iter().map(|p| (p - points[chosen[0]]).norm_squared()).collect();
+    chosen.push(first.unwrap_or(0));
+    distance.clear();
+    distance.extend(points.iter().map(|p| (p - points[chosen[0]]).norm_squared()));
     while chosen.len() < count {
         let next = (0..points.len()).max_by(|&a, &b| distance[a].total_cmp(&distance[b])).unwrap_or(0);
         chosen.push(next);
@@ -185,7 +257,6 @@ pub fn farthest_point_sampling(points: &[Point3<f64>], count: usize) -> Vec<usiz
             *d = d.min((p - points[next]).norm_squared());
         }
     }
-    chosen
 }
 
 #[cfg(test)]

@@ -3,13 +3,15 @@
 //! training — the ground-truth labels. The same code builds training samples (`angle-i2p
 //! export`) and inference inputs, so both sides see identical numbers.
 
+use std::borrow::Cow;
+
 use nalgebra::Point3;
 
 pub use super::features::IndexedMap;
-use super::features::{features, map_normals, FEATURE_DIM};
-use super::graph::{build_graphs, Graphs};
+use super::features::{features_into, map_normals, FEATURE_DIM};
+use super::graph::{build_graphs_into, GraphScratch, Graphs};
 use super::network_params::{KeypointRanking, NetworkParams};
-use super::{FrameGeometry, Rejector, SpectralRejector};
+use super::{FrameGeometry, SpectralRejector};
 
 /// One frame's network inputs.
 #[derive(Clone, Debug, Default)]
@@ -23,34 +25,43 @@ pub struct NetworkInputs {
     pub matcher_scores: Vec<f32>,
 }
 
-/// The values of one input tensor, in the element type the network declares.
+/// The values of one input tensor, in the element type the network declares: the f32 ones
+/// borrowed from [`NetworkInputs`] (no copy per frame), the indices widened to i64.
 #[derive(Clone, Debug, PartialEq)]
-pub enum TensorValues {
-    F32(Vec<f32>),
+pub enum TensorValues<'a> {
+    F32(Cow<'a, [f32]>),
     I64(Vec<i64>),
 }
 
 /// One named input of the network: row-major values and their shape.
 #[derive(Clone, Debug, PartialEq)]
-pub struct InputTensor {
+pub struct InputTensor<'a> {
     pub name: &'static str,
     pub shape: Vec<usize>,
-    pub values: TensorValues,
+    pub values: TensorValues<'a>,
+}
+
+/// What building the inputs works in besides the inputs themselves, kept between frames.
+#[derive(Clone, Debug, Default)]
+pub struct InputScratch {
+    image: Vec<Point3<f64>>,
+    keypoint_ranks: Vec<f32>,
+    graph: GraphScratch,
 }
 
 impl NetworkInputs {
     /// The network's input tensors (N correspondences, V local nodes of K, M keypoints): the one
     /// definition of the layout, which the ONNX run feeds and `export` writes (`NAME.npy`) for
     /// training.
-    pub fn tensors(&self) -> Vec<InputTensor> {
+    pub fn tensors(&self) -> Vec<InputTensor<'_>> {
         let n = self.features.len();
         let g = &self.graphs;
         let m = g.global_index.len();
         let index = |v: &[u32]| TensorValues::I64(v.iter().map(|&i| i as i64).collect());
-        let f32s = |v: &[f32]| TensorValues::F32(v.to_vec());
+        let f32s = |v| TensorValues::F32(Cow::Borrowed(v));
         let tensor = |name, shape: &[usize], values| InputTensor { name, shape: shape.to_vec(), values };
         vec![
-            tensor("features", &[n, FEATURE_DIM], TensorValues::F32(self.features.iter().flatten().copied().collect())),
+            tensor("features", &[n, FEATURE_DIM], f32s(self.features.as_flattened())),
             tensor("local_index", &[g.nodes, g.neighbours], index(&g.local_index)),
             tensor("local_theta", &[g.nodes, g.neighbours, g.neighbours], f32s(&g.local_theta)),
             tensor("global_index", &[m], index(&g.global_index)),
@@ -69,39 +80,60 @@ pub fn build_inputs(
     spectral: &mut SpectralRejector,
     params: &NetworkParams,
 ) -> NetworkInputs {
-    let spectral_scores = spectral.reject(geometry).map(|r| r.scores).unwrap_or_else(|_| vec![0.0; geometry.len()]);
+    let mut inputs = NetworkInputs::default();
+    build_inputs_into(&mut inputs, geometry, map, spectral, params, &mut InputScratch::default());
+    inputs
+}
+
+/// [`build_inputs`] into `inputs`, reusing its buffers and `scratch`'s (the learned rejector
+/// keeps both across frames).
+pub fn build_inputs_into(
+    inputs: &mut NetworkInputs,
+    geometry: &FrameGeometry,
+    map: Option<&IndexedMap>,
+    spectral: &mut SpectralRejector,
+    params: &NetworkParams,
+    scratch: &mut InputScratch,
+) {
+    if spectral.scores_into(geometry, &mut inputs.spectral_scores).is_err() {
+        inputs.spectral_scores.clear();
+        inputs.spectral_scores.resize(geometry.len(), 0.0);
+    }
     let n_map = match map {
         Some(m) => map_normals(m, geometry),
         None => vec![nalgebra::Vector3::zeros(); geometry.len()],
     };
-    let image: Vec<Point3<f64>> = (0..geometry.len())
-        .map(|i| match geometry.image_points.get(i) {
-            Some(p) if p.coords.iter().all(|v| v.is_finite()) => *p,
-            _ => geometry.map_points[i],
-        })
-        .collect();
-    NetworkInputs {
-        features: features(geometry, &geometry.image_normals, &n_map, params.align_prior),
-        graphs: build_graphs(
-            &image,
-            &geometry.map_points,
-            &keypoint_ranks(&spectral_scores, geometry, params),
-            &params.graph(),
-        ),
-        spectral_scores,
-        matcher_scores: geometry.matcher_scores.clone(),
-    }
+    scratch.image.clear();
+    scratch.image.extend((0..geometry.len()).map(|i| match geometry.image_points.get(i) {
+        Some(p) if p.coords.iter().all(|v| v.is_finite()) => *p,
+        _ => geometry.map_points[i],
+    }));
+    features_into(&mut inputs.features, geometry, &geometry.image_normals, &n_map, params.align_prior);
+    keypoint_ranks(&inputs.spectral_scores, geometry, params, &mut scratch.keypoint_ranks);
+    let graph_scratch = &mut scratch.graph;
+    build_graphs_into(
+        &mut inputs.graphs,
+        &scratch.image,
+        &geometry.map_points,
+        &scratch.keypoint_ranks,
+        &params.graph,
+        graph_scratch,
+    );
+    inputs.matcher_scores.clear();
+    inputs.matcher_scores.extend_from_slice(&geometry.matcher_scores);
 }
 
 /// The scores that pick the keypoints ([`KeypointRanking`]). A matcher that publishes no
 /// confidence (all zero) leaves the spectral order.
-fn keypoint_ranks(spectral: &[f32], geometry: &FrameGeometry, params: &NetworkParams) -> Vec<f32> {
+fn keypoint_ranks(spectral: &[f32], geometry: &FrameGeometry, params: &NetworkParams, ranks: &mut Vec<f32>) {
+    ranks.clear();
     match params.keypoint_ranking {
-        KeypointRanking::Spectral => spectral.to_vec(),
-        KeypointRanking::SpectralMatcher => spectral
-            .iter()
-            .zip(&geometry.matcher_scores)
-            .map(|(&s, &m)| s * (if m.is_finite() { m.clamp(0.0, 1.0) } else { 0.0 } + 1e-3))
-            .collect(),
+        KeypointRanking::Spectral => ranks.extend_from_slice(spectral),
+        KeypointRanking::SpectralMatcher => ranks.extend(
+            spectral
+                .iter()
+                .zip(&geometry.matcher_scores)
+                .map(|(&s, &m)| s * (if m.is_finite() { m.clamp(0.0, 1.0) } else { 0.0 } + 1e-3)),
+        ),
     }
 }

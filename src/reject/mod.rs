@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix, PairMetric, ScaleShiftParams};
 use crate::frame::Frame;
-use crate::geometry::{DepthKind, FrameParts};
+use crate::geometry::{DepthKind, GeometryScratch};
 
 pub use crate::geometry::FrameGeometry;
 
@@ -22,14 +22,27 @@ impl FrameGeometry {
     /// Builds the geometry of `frame`. Without a depth prior, `prior_coordinate` is all NaN and the
     /// image cloud empty; rejectors that need it report that.
     pub fn build(frame: &Frame, kind: DepthKind, align: Option<&ScaleShiftParams>) -> Self {
-        let parts = FrameParts {
-            intrinsics: frame.intrinsics,
-            pixels: frame.correspondences.iter().map(|c| c.pixel).collect(),
-            map_points: frame.correspondences.iter().map(|c| c.point).collect(),
-            matcher_scores: frame.correspondences.iter().map(|c| c.score).collect(),
-            depth_prior: frame.depth_prior.as_ref(),
-        };
-        Self::new(parts, kind, align)
+        let mut geometry = Self::default();
+        geometry.rebuild(frame, kind, align, &mut GeometryScratch::default());
+        geometry
+    }
+
+    /// [`FrameGeometry::build`] in place: every buffer refilled, none allocated again once a
+    /// frame as large was seen.
+    pub fn rebuild(
+        &mut self,
+        frame: &Frame,
+        kind: DepthKind,
+        align: Option<&ScaleShiftParams>,
+        scratch: &mut GeometryScratch,
+    ) {
+        self.pixels.clear();
+        self.pixels.extend(frame.correspondences.iter().map(|c| c.pixel));
+        self.map_points.clear();
+        self.map_points.extend(frame.correspondences.iter().map(|c| c.point));
+        self.matcher_scores.clear();
+        self.matcher_scores.extend(frame.correspondences.iter().map(|c| c.score));
+        self.derive(frame.intrinsics, frame.depth_prior.as_ref(), kind, align, scratch);
     }
 }
 
@@ -126,6 +139,7 @@ pub struct SpectralRejector {
     index: Vec<usize>,
     vector: Vec<f32>,
     next: Vec<f32>,
+    weights: Vec<f64>,
 }
 
 impl SpectralRejector {
@@ -136,6 +150,57 @@ impl SpectralRejector {
     /// The consistency matrix of the last frame, over the correspondences with a known prior.
     pub fn theta(&self) -> &ConsistencyMatrix {
         &self.theta
+    }
+
+    /// The inlier score in [0, 1] of each correspondence of `geometry`, into `scores` (its
+    /// allocation reused): what [`Rejector::reject`] ranks, without choosing the kept ones.
+    pub fn scores_into(&mut self, geometry: &FrameGeometry, scores: &mut Vec<f32>) -> Result<(), RejectError> {
+        if !geometry.has_prior() {
+            return Err(RejectError::MissingDepthPrior("consistency"));
+        }
+        let n = geometry.len();
+        self.index.clear();
+        self.index.extend((0..n).filter(|&i| geometry.image_points[i].coords.iter().all(|v| v.is_finite())));
+        self.image.clear();
+        self.image.extend(self.index.iter().map(|&i| geometry.image_points[i]));
+        self.map.clear();
+        self.map.extend(self.index.iter().map(|&i| geometry.map_points[i]));
+        match self.params.metric {
+            PairMetric::Angle => {
+                // Outliers drag the centroids of eq. (5) apart, which blurs θ for inliers too;
+                // a second pass centres both clouds on the first pass's likely inliers.
+                angle_consistency(&self.image, &self.map, None, self.params.sigma_d, &mut self.theta);
+                for _ in 0..self.params.recentre_passes {
+                    self.leading_eigenvector();
+                    self.weights.clear();
+                    self.weights.extend(self.vector.iter().map(|&v| (v as f64) * (v as f64)));
+                    angle_consistency(
+                        &self.image,
+                        &self.map,
+                        Some(&self.weights),
+                        self.params.sigma_d,
+                        &mut self.theta,
+                    );
+                }
+            }
+            PairMetric::Distance => distance_consistency(
+                &self.image,
+                &self.map,
+                self.params.sigma_spread * spread(&self.map),
+                self.params.sigma_rel,
+                &mut self.theta,
+            ),
+        }
+        self.leading_eigenvector();
+        let max = self.vector.iter().copied().fold(0.0f32, f32::max);
+        scores.clear();
+        scores.resize(n, 0.0);
+        if max > 0.0 {
+            for (&i, &v) in self.index.iter().zip(&self.vector) {
+                scores[i] = (v / max).clamp(0.0, 1.0);
+            }
+        }
+        Ok(())
     }
 
     /// Power iteration from the degree vector (already close to the leading eigenvector when
@@ -205,44 +270,9 @@ impl Rejector for SpectralRejector {
     }
 
     fn reject(&mut self, geometry: &FrameGeometry) -> Result<Rejection, RejectError> {
-        if !geometry.has_prior() {
-            return Err(RejectError::MissingDepthPrior("consistency"));
-        }
-        let n = geometry.len();
-        self.index.clear();
-        self.index.extend((0..n).filter(|&i| geometry.image_points[i].coords.iter().all(|v| v.is_finite())));
-        self.image.clear();
-        self.image.extend(self.index.iter().map(|&i| geometry.image_points[i]));
-        self.map.clear();
-        self.map.extend(self.index.iter().map(|&i| geometry.map_points[i]));
-        match self.params.metric {
-            PairMetric::Angle => {
-                // Outliers drag the centroids of eq. (5) apart, which blurs θ for inliers too;
-                // a second pass centres both clouds on the first pass's likely inliers.
-                angle_consistency(&self.image, &self.map, None, self.params.sigma_d, &mut self.theta);
-                for _ in 0..self.params.recentre_passes {
-                    self.leading_eigenvector();
-                    let weights: Vec<f64> = self.vector.iter().map(|&v| (v as f64) * (v as f64)).collect();
-                    angle_consistency(&self.image, &self.map, Some(&weights), self.params.sigma_d, &mut self.theta);
-                }
-            }
-            PairMetric::Distance => distance_consistency(
-                &self.image,
-                &self.map,
-                self.params.sigma_spread * spread(&self.map),
-                self.params.sigma_rel,
-                &mut self.theta,
-            ),
-        }
-        self.leading_eigenvector();
-        let max = self.vector.iter().copied().fold(0.0f32, f32::max);
-        let mut scores = vec![0.0f32; n];
-        if max > 0.0 {
-            for (&i, &v) in self.index.iter().zip(&self.vector) {
-                scores[i] = (v / max).clamp(0.0, 1.0);
-            }
-        }
-        Ok(Rejection { kept: top_k(&scores, keep_count(n, &self.params)), scores })
+        let mut scores = Vec::new();
+        self.scores_into(geometry, &mut scores)?;
+        Ok(Rejection { kept: top_k(&scores, keep_count(geometry.len(), &self.params)), scores })
     }
 }
 

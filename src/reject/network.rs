@@ -5,16 +5,15 @@
 //! ONNX Runtime is loaded at start-up from `NetworkParams::onnxruntime_path`, else
 //! `ORT_DYLIB_PATH`, else `.ort/libonnxruntime.so.1.31.1` (`make ort` puts it there).
 
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
-use std::borrow::Cow;
-
-use super::inputs::{build_inputs, IndexedMap, NetworkInputs, TensorValues};
+use super::inputs::{build_inputs, build_inputs_into, IndexedMap, InputScratch, NetworkInputs, TensorValues};
 pub use super::network_params::{KeypointRanking, NetworkParams};
 use super::{top_k, FrameGeometry, RejectError, Rejection, Rejector, SpectralParams, SpectralRejector};
 use ort::session::{Session, SessionInputValue};
-use ort::value::Tensor;
+use ort::value::{Tensor, TensorRef};
 
 /// The library file this build expects (the `api-31` feature).
 pub const ONNXRUNTIME_LIBRARY: &str = "libonnxruntime.so.1.31.1";
@@ -77,6 +76,10 @@ pub struct NetworkRejector {
     session: Session,
     spectral: SpectralRejector,
     map: Option<Arc<IndexedMap>>,
+    /// The last frame's inputs and what building them works in: refilled every frame, so
+    /// their buffers are allocated once.
+    inputs: NetworkInputs,
+    scratch: InputScratch,
 }
 
 impl NetworkRejector {
@@ -93,7 +96,14 @@ impl NetworkRejector {
             .and_then(|mut b| b.commit_from_file(&model_path))
             .map_err(|e| model_err(e.to_string()))?;
         let spectral = SpectralRejector::new(params.keypoint_spectral(spectral));
-        Ok(Self { params, session, spectral, map: None })
+        Ok(Self {
+            params,
+            session,
+            spectral,
+            map: None,
+            inputs: NetworkInputs::default(),
+            scratch: InputScratch::default(),
+        })
     }
 
     /// The network's inputs for one frame (eq. 9 features, graphs, θ).
@@ -103,32 +113,34 @@ impl NetworkRejector {
 
     /// The network's scores for prepared inputs.
     pub fn run(&mut self, inputs: &NetworkInputs) -> Result<Vec<f32>, RejectError> {
-        let n = inputs.features.len();
-        let fail = |e: ort::Error| RejectError::Failed(format!("network: {e}"));
-        let mut values: Vec<(Cow<'static, str>, SessionInputValue<'static>)> = Vec::new();
-        for t in inputs.tensors() {
-            // Each model takes the inputs it declares: one without global attention (the
-            // ablation) has no global ones, one trained without the matcher's confidence has no
-            // `matcher_score`.
-            if !self.session.inputs().iter().any(|i| i.name() == t.name) {
-                continue;
-            }
-            let value: SessionInputValue<'static> = match t.values {
-                TensorValues::F32(v) => Tensor::from_array((t.shape, v)).map_err(fail)?.into(),
-                TensorValues::I64(v) => Tensor::from_array((t.shape, v)).map_err(fail)?.into(),
-            };
-            values.push((Cow::Borrowed(t.name), value));
-        }
-        let outputs = self.session.run(values).map_err(fail)?;
-        let (_, scores) = outputs["score"].try_extract_tensor::<f32>().map_err(fail)?;
-        if scores.len() != n {
-            return Err(RejectError::Failed(format!(
-                "network returned {} scores for {n} correspondences",
-                scores.len()
-            )));
-        }
-        Ok(scores.to_vec())
+        score(&mut self.session, inputs)
     }
+}
+
+/// Runs `session` on `inputs`: each tensor a view of the inputs' own buffers (no copy).
+fn score(session: &mut Session, inputs: &NetworkInputs) -> Result<Vec<f32>, RejectError> {
+    let n = inputs.features.len();
+    let fail = |e: ort::Error| RejectError::Failed(format!("network: {e}"));
+    let mut values: Vec<(Cow<'static, str>, SessionInputValue<'_>)> = Vec::new();
+    for t in inputs.tensors() {
+        // Each model takes the inputs it declares: one without global attention (the ablation)
+        // has no global ones, one trained without the matcher's confidence has no `matcher_score`.
+        if !session.inputs().iter().any(|i| i.name() == t.name) {
+            continue;
+        }
+        let value: SessionInputValue<'_> = match t.values {
+            TensorValues::F32(Cow::Borrowed(v)) => TensorRef::from_array_view((t.shape, v)).map_err(fail)?.into(),
+            TensorValues::F32(Cow::Owned(v)) => Tensor::from_array((t.shape, v)).map_err(fail)?.into(),
+            TensorValues::I64(v) => Tensor::from_array((t.shape, v)).map_err(fail)?.into(),
+        };
+        values.push((Cow::Borrowed(t.name), value));
+    }
+    let outputs = session.run(values).map_err(fail)?;
+    let (_, scores) = outputs["score"].try_extract_tensor::<f32>().map_err(fail)?;
+    if scores.len() != n {
+        return Err(RejectError::Failed(format!("network returned {} scores for {n} correspondences", scores.len())));
+    }
+    Ok(scores.to_vec())
 }
 
 impl Rejector for NetworkRejector {
@@ -144,8 +156,9 @@ impl Rejector for NetworkRejector {
         if !geometry.has_prior() {
             return Err(RejectError::MissingDepthPrior("angle_i2p"));
         }
-        let inputs = self.inputs(geometry);
-        let scores = self.run(&inputs)?;
+        let map = self.map.as_deref();
+        build_inputs_into(&mut self.inputs, geometry, map, &mut self.spectral, &self.params, &mut self.scratch);
+        let scores = score(&mut self.session, &self.inputs)?;
         let mut kept: Vec<usize> = top_k(&scores, scores.len());
         let above = kept.iter().take_while(|&&i| f64::from(scores[i]) >= self.params.tau).count();
         kept.truncate(above.max(self.params.min_keep).min(scores.len()));

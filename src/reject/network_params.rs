@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::graph::GraphParams;
 use super::SpectralParams;
-use crate::consistency::{PairMetric, ScaleShiftParams};
+use crate::consistency::ScaleShiftParams;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -20,11 +20,11 @@ pub struct NetworkParams {
     pub min_keep: usize,
     /// Intra-op threads of the session (1: one core per node instance).
     pub intra_threads: usize,
-    /// K, M, the θ kind and σ_d of the graphs (must match the training export).
-    pub neighbours: usize,
-    pub keypoints: usize,
-    pub theta: PairMetric,
-    pub sigma_d: f64,
+    /// K, M, the θ kind and σ_d of the graphs (must match the training export): their keys sit
+    /// directly under `network` (`network.neighbours`, …). Unknown keys are still refused:
+    /// serde checks what no field (flattened or not) took, and `params::resolve` names them first.
+    #[serde(flatten)]
+    pub graph: GraphParams,
     /// Align the prior's scale and shift before building features and graphs (the paper's
     /// scale alignment); `false` is the ablation: raw prior, no eq. (8) rescaling either.
     pub align_prior: bool,
@@ -49,17 +49,13 @@ pub enum KeypointRanking {
 
 impl Default for NetworkParams {
     fn default() -> Self {
-        let g = GraphParams::default();
         Self {
             model_path: "models/angle_i2p.onnx".into(),
             onnxruntime_path: String::new(),
             tau: 0.2,
             min_keep: 12,
             intra_threads: 1,
-            neighbours: g.neighbours,
-            keypoints: g.keypoints,
-            theta: g.theta,
-            sigma_d: g.sigma_d,
+            graph: GraphParams::default(),
             align_prior: true,
             keypoint_iterations: 4,
             keypoint_ranking: KeypointRanking::default(),
@@ -68,17 +64,6 @@ impl Default for NetworkParams {
 }
 
 impl NetworkParams {
-    /// The graphs' parameters.
-    pub fn graph(&self) -> GraphParams {
-        GraphParams {
-            neighbours: self.neighbours,
-            keypoints: self.keypoints,
-            theta: self.theta,
-            sigma_d: self.sigma_d,
-            ..GraphParams::default()
-        }
-    }
-
     /// The spectral pass that ranks the keypoints.
     pub fn keypoint_spectral(&self, spectral: SpectralParams) -> SpectralParams {
         SpectralParams { iterations: self.keypoint_iterations, ..spectral }
@@ -87,5 +72,69 @@ impl NetworkParams {
     /// The prior alignment the network's inputs are built with.
     pub fn alignment<'a>(&self, align: &'a ScaleShiftParams) -> Option<&'a ScaleShiftParams> {
         self.align_prior.then_some(align)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Point2, Point3};
+
+    use super::*;
+    use crate::consistency::PairMetric;
+    use crate::reject::inputs::build_inputs;
+    use crate::reject::{FrameGeometry, SpectralRejector};
+
+    #[test]
+    fn graph_keys_sit_directly_under_network() {
+        let keys = serde_yaml::to_value(NetworkParams::default()).unwrap();
+        let keys: Vec<&str> = keys.as_mapping().unwrap().keys().filter_map(|k| k.as_str()).collect();
+        for graph_key in ["neighbours", "keypoints", "theta", "sigma_d"] {
+            assert!(keys.contains(&graph_key), "{graph_key} missing from {keys:?}");
+        }
+        assert!(!keys.iter().any(|k| *k == "graph" || k.starts_with("sigma_abs") || k.starts_with("sigma_rel")));
+        let parsed: NetworkParams =
+            serde_yaml::from_str("neighbours: 8\nkeypoints: 20\ntheta: distance\nsigma_d: 0.3\ntau: 0.5\n").unwrap();
+        let expected = GraphParams {
+            neighbours: 8,
+            keypoints: 20,
+            theta: PairMetric::Distance,
+            sigma_d: 0.3,
+            ..GraphParams::default()
+        };
+        assert_eq!((parsed.graph, parsed.tau), (expected, 0.5));
+    }
+
+    /// Flattening must not open a door to typos: serde itself refuses a key no field takes.
+    #[test]
+    fn unknown_keys_beside_the_graph_keys_are_refused() {
+        let err = serde_yaml::from_str::<NetworkParams>("neighbours: 8\nneighbors: 9\n").unwrap_err().to_string();
+        assert!(err.contains("neighbors"), "{err}");
+        let err = serde_yaml::from_str::<NetworkParams>("sigma_abs: 0.1\n").unwrap_err().to_string();
+        assert!(err.contains("sigma_abs"), "a fixed field is no parameter: {err}");
+    }
+
+    /// `-p network.neighbours:=…` and `network.keypoints` reach the graphs the network is fed.
+    #[test]
+    fn a_graph_key_set_by_the_user_reaches_the_graphs() {
+        let resolved =
+            crate::params::resolve_cli(None, &["network.neighbours:=8", "network.keypoints:=20"]).unwrap().localizer;
+        assert_eq!((resolved.network.graph.neighbours, resolved.network.graph.keypoints), (8, 20));
+        let map: Vec<Point3<f64>> = (0..60)
+            .map(|i| Point3::new((i % 10) as f64 * 0.2, (i / 10) as f64 * 0.2, 2.0 + (i % 3) as f64 * 0.1))
+            .collect();
+        let geometry = FrameGeometry {
+            pixels: vec![Point2::origin(); map.len()],
+            image_points: map.iter().map(|p| Point3::new(p.x, p.y, p.z + 1.0)).collect(),
+            matcher_scores: vec![0.5; map.len()],
+            map_points: map,
+            ..FrameGeometry::default()
+        };
+        let mut spectral = SpectralRejector::default();
+        let inputs = build_inputs(&geometry, None, &mut spectral, &resolved.network);
+        assert_eq!(inputs.graphs.neighbours, 8);
+        assert_eq!(inputs.graphs.local_index.len(), inputs.graphs.nodes * 8);
+        assert_eq!(inputs.graphs.global_index.len(), 20);
+        let default = build_inputs(&geometry, None, &mut spectral, &NetworkParams::default());
+        assert_eq!((default.graphs.neighbours, default.graphs.global_index.len()), (32, 60));
     }
 }
