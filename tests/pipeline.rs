@@ -286,3 +286,31 @@ fn a_frame_the_rejection_guided_path_leaves_without_a_pose_gets_plain_lo_ransacs
         assert!(!w.fast_path && w.failure.is_none());
     }
 }
+
+/// An `/initialpose`-like gate reaches every path of the cascade: around the truth the frames
+/// localize as without it; far from it, no pose outside is returned (the fast path, the
+/// rejection-guided PnP and the last resort all search inside the gate only).
+#[test]
+fn a_pose_gate_steers_every_path_of_the_cascade() {
+    use angle_i2p::pnp::PoseGate;
+    use nalgebra::{Translation3, Vector3};
+    for preset in ["sift", "hard"] {
+        let scene = generate(&SynthConfig { frames: 2, seed: 13, ..SynthConfig::preset(preset).unwrap() });
+        let mut localizer = Localizer::new(LocalizerParams::default()).expect("a localizer");
+        localizer.set_map(&scene.map);
+        for f in &scene.frames {
+            let truth = *f.ground_truth.as_ref().and_then(|g| g.pose.as_ref()).expect("gt pose");
+            let near = PoseGate { centre: truth, radius_m: 0.5, max_angle_rad: 0.2 };
+            localizer.set_pose_gate(Some(near.clone()));
+            let loc = localizer.process(f);
+            let pose = loc.pose.unwrap_or_else(|| panic!("{preset}: {:?}", loc.failure));
+            assert!(near.check(&pose).is_ok() && pose.rotation.angle_to(&truth.rotation) < 0.03, "{preset}");
+            let away = Translation3::from(truth.translation.vector + Vector3::new(5.0, 0.0, 0.0));
+            let far = PoseGate { centre: nalgebra::Isometry3::from_parts(away, truth.rotation), ..near };
+            localizer.set_pose_gate(Some(far.clone()));
+            let loc = localizer.process(f);
+            assert!(loc.pose.is_none_or(|p| far.check(&p).is_ok()), "{preset}: a pose outside the gate");
+        }
+        localizer.set_pose_gate(None);
+    }
+}

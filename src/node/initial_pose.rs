@@ -5,12 +5,11 @@
 //! (`error.outside_initialpose_gate`). Each accepted pose becomes the gate's centre, so the gate
 //! follows the camera; `~/relocalize` drops it (global localization again).
 //!
-//! The gate acts on PnP's result; steering PnP's sampling with the prior would need a change in
-//! the core (`src/pnp`), which this does not make.
-
-use nalgebra::{Isometry3, UnitQuaternion};
+//! The gate acts inside PnP ([`crate::pnp::PoseGate`]: hypotheses outside it are never scored,
+//! so a wrong pose with more support elsewhere cannot win) and again on the result.
 
 use crate::msgs::{convert, PoseWithCovarianceStamped};
+pub use crate::pnp::{GateMiss, PoseGate};
 
 /// How wide the gate is.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -31,80 +30,40 @@ pub enum InitialPoseError {
     Covariance { index: usize, value: f64 },
 }
 
-/// A pose outside the gate.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("pose {distance_m:.2} m / {angle_deg:.1}° from the prior, gate {radius_m:.2} m / {max_angle_deg:.1}°")]
-pub struct GateMiss {
-    pub distance_m: f64,
-    pub radius_m: f64,
-    pub angle_deg: f64,
-    pub max_angle_deg: f64,
-}
-
-/// The prior the node's poses must agree with.
-#[derive(Clone, Debug, PartialEq)]
-pub struct PoseGate {
-    pub centre: Isometry3<f64>,
-    pub radius_m: f64,
-    pub max_angle_rad: f64,
-}
-
-impl PoseGate {
-    /// The gate of an `/initialpose` message; `map_frame` (when known and the message names a
-    /// frame) must match its frame.
-    pub fn from_msg(
-        msg: &PoseWithCovarianceStamped,
-        map_frame: Option<&str>,
-        width: GateWidth,
-    ) -> Result<Self, InitialPoseError> {
-        let got = msg.header.frame_id.trim_start_matches('/');
-        if let Some(want) = map_frame.filter(|w| !w.is_empty() && !got.is_empty() && *w != got) {
-            return Err(InitialPoseError::Frame { got: got.into(), want: want.into() });
-        }
-        let centre = convert::isometry_from_pose(&msg.pose.pose).map_err(|e| InitialPoseError::Pose(e.to_string()))?;
-        let cov = &msg.pose.covariance;
-        for (index, value) in cov.iter().enumerate() {
-            let diagonal = index % 7 == 0;
-            if !value.is_finite() || (diagonal && *value < 0.0) {
-                return Err(InitialPoseError::Covariance { index, value: *value });
-            }
-        }
-        // Position: the largest of the x, y, z deviations; rotation: of roll, pitch, yaw.
-        let sigma_pos = [0, 7, 14].iter().map(|&i| cov[i].sqrt()).fold(0.0, f64::max);
-        let sigma_rot = [21, 28, 35].iter().map(|&i| cov[i].sqrt()).fold(0.0, f64::max);
-        Ok(Self {
-            centre,
-            radius_m: (width.sigmas * sigma_pos).max(width.min_radius_m),
-            max_angle_rad: (width.sigmas * sigma_rot).max(width.min_angle_deg.to_radians()),
-        })
+/// The gate of an `/initialpose` message; `map_frame` (when known and the message names a
+/// frame) must match its frame.
+pub fn gate_from_msg(
+    msg: &PoseWithCovarianceStamped,
+    map_frame: Option<&str>,
+    width: GateWidth,
+) -> Result<PoseGate, InitialPoseError> {
+    let got = msg.header.frame_id.trim_start_matches('/');
+    if let Some(want) = map_frame.filter(|w| !w.is_empty() && !got.is_empty() && *w != got) {
+        return Err(InitialPoseError::Frame { got: got.into(), want: want.into() });
     }
-
-    /// Whether `pose` is inside the gate.
-    pub fn check(&self, pose: &Isometry3<f64>) -> Result<(), GateMiss> {
-        let distance_m = (pose.translation.vector - self.centre.translation.vector).norm();
-        let angle = UnitQuaternion::angle_to(&pose.rotation, &self.centre.rotation);
-        if distance_m <= self.radius_m && angle <= self.max_angle_rad {
-            return Ok(());
+    let centre = convert::isometry_from_pose(&msg.pose.pose).map_err(|e| InitialPoseError::Pose(e.to_string()))?;
+    let cov = &msg.pose.covariance;
+    for (index, value) in cov.iter().enumerate() {
+        let diagonal = index % 7 == 0;
+        if !value.is_finite() || (diagonal && *value < 0.0) {
+            return Err(InitialPoseError::Covariance { index, value: *value });
         }
-        Err(GateMiss {
-            distance_m,
-            radius_m: self.radius_m,
-            angle_deg: angle.to_degrees(),
-            max_angle_deg: self.max_angle_rad.to_degrees(),
-        })
     }
-
-    /// Moves the gate to an accepted pose.
-    pub fn follow(&mut self, pose: &Isometry3<f64>) {
-        self.centre = *pose;
-    }
+    // Position: the largest of the x, y, z deviations; rotation: of roll, pitch, yaw.
+    let sigma_pos = [0, 7, 14].iter().map(|&i| cov[i].sqrt()).fold(0.0, f64::max);
+    let sigma_rot = [21, 28, 35].iter().map(|&i| cov[i].sqrt()).fold(0.0, f64::max);
+    Ok(PoseGate {
+        centre,
+        radius_m: (width.sigmas * sigma_pos).max(width.min_radius_m),
+        max_angle_rad: (width.sigmas * sigma_rot).max(width.min_angle_deg.to_radians()),
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::msgs::{Header, PoseWithCovariance};
-    use nalgebra::{Translation3, Vector3};
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
     fn msg(frame: &str, at: [f64; 3], var_pos: f64, var_rot: f64) -> PoseWithCovarianceStamped {
         let iso = Isometry3::from_parts(Translation3::new(at[0], at[1], at[2]), UnitQuaternion::identity());
@@ -123,7 +82,7 @@ mod tests {
 
     #[test]
     fn gate_from_covariance_follows_accepted_poses() {
-        let mut gate = PoseGate::from_msg(&msg("map", [1.0, 2.0, 0.0], 0.25, 0.01), Some("map"), WIDTH).unwrap();
+        let mut gate = gate_from_msg(&msg("map", [1.0, 2.0, 0.0], 0.25, 0.01), Some("map"), WIDTH).unwrap();
         assert!((gate.radius_m - 1.5).abs() < 1e-12);
         assert!((gate.max_angle_rad - 0.3).abs() < 1e-12);
         let near = Isometry3::from_parts(Translation3::new(2.0, 2.5, 0.5), UnitQuaternion::identity());
@@ -141,18 +100,18 @@ mod tests {
             .check(&Isometry3::from_parts(Translation3::new(3.4, 2.5, 0.5), UnitQuaternion::identity()))
             .is_ok());
         // A zero covariance still leaves the minimum gate.
-        let tight = PoseGate::from_msg(&msg("", [0.0; 3], 0.0, 0.0), Some("map"), WIDTH).unwrap();
+        let tight = gate_from_msg(&msg("", [0.0; 3], 0.0, 0.0), Some("map"), WIDTH).unwrap();
         assert_eq!(tight.radius_m, 0.5);
     }
 
     #[test]
     fn bad_initial_poses_are_named() {
-        let e = PoseGate::from_msg(&msg("odom", [0.0; 3], 0.1, 0.1), Some("map"), WIDTH).unwrap_err();
+        let e = gate_from_msg(&msg("odom", [0.0; 3], 0.1, 0.1), Some("map"), WIDTH).unwrap_err();
         assert!(matches!(e, InitialPoseError::Frame { .. }), "{e}");
-        let e = PoseGate::from_msg(&msg("map", [0.0; 3], -1.0, 0.1), Some("map"), WIDTH).unwrap_err();
+        let e = gate_from_msg(&msg("map", [0.0; 3], -1.0, 0.1), Some("map"), WIDTH).unwrap_err();
         assert!(matches!(e, InitialPoseError::Covariance { index: 0, .. }), "{e}");
         let mut m = msg("map", [0.0; 3], 0.1, 0.1);
         m.pose.pose.orientation.w = f64::NAN;
-        assert!(PoseGate::from_msg(&m, None, WIDTH).is_err());
+        assert!(gate_from_msg(&m, None, WIDTH).is_err());
     }
 }

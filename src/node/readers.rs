@@ -15,7 +15,7 @@ use tokio::sync::mpsc;
 use super::dds;
 use super::image as img;
 use super::ingest::Input;
-use super::initial_pose::{GateWidth, PoseGate};
+use super::initial_pose::{gate_from_msg, GateWidth, PoseGate};
 use super::log::{info, lock};
 use super::services;
 use super::tf_buffer::TfHistory;
@@ -203,19 +203,16 @@ pub fn subscribe_initial_pose(
     gate: &Arc<Mutex<Option<PoseGate>>>,
 ) -> Result<()> {
     let (gate, width) = (gate.clone(), width.clone());
-    read(
-        r,
-        &topics.initial_pose,
-        &dds::reliable(10),
-        move |m: msgs::PoseWithCovarianceStamped| match PoseGate::from_msg(&m, None, *lock(&width)) {
+    read(r, &topics.initial_pose, &dds::reliable(10), move |m: msgs::PoseWithCovarianceStamped| {
+        match gate_from_msg(&m, None, *lock(&width)) {
             Ok(g) => {
                 info(format!("initial pose: gate {:.2} m / {:.1}°", g.radius_m, g.max_angle_rad.to_degrees()));
                 *lock(&gate) = Some(g);
                 None
             }
             Err(e) => Some(Input::Invalid { reason: "invalid_initialpose", detail: e.to_string() }),
-        },
-    )
+        }
+    })
 }
 
 /// `~/load_map` (reloads `map_path`) and `~/relocalize` (drops the initial-pose gate).

@@ -86,6 +86,8 @@ pub async fn run(
         if let Some(index) = maps.take_ready() {
             current.set_map_index(index);
         }
+        // The `/initialpose` gate steers PnP itself, not only the published pose.
+        current.set_pose_gate(lock(&gate).clone());
         let done = match localize(current, job.frame).await {
             Ok(done) => done,
             Err(e) => {

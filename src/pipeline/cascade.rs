@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::frame::Frame;
-use crate::pnp::{solve_pnp_ransac, Guidance, PnpParams, PnpSolution, Problem};
+use crate::pnp::{solve_pnp_ransac, Guidance, PnpParams, PnpSolution, PoseGate, Problem};
 
 /// When the budgeted LO-RANSAC settles a frame on its own.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -56,28 +56,34 @@ pub struct FastPathCheck {
 }
 
 impl CascadeParams {
-    /// The budgeted RANSAC's solution when it settles the frame, else what it measured.
-    pub fn settle(&self, frame: &Frame, pnp: &PnpParams, seed: u64) -> Result<PnpSolution, FastPathCheck> {
+    /// The budgeted RANSAC's solution when it settles the frame, else what it measured; `pnp`
+    /// as for the frame's camera and with the seed, poses only inside `gate` when there is one.
+    pub fn settle(
+        &self,
+        frame: &Frame,
+        pnp: &PnpParams,
+        gate: Option<&PoseGate>,
+    ) -> Result<PnpSolution, FastPathCheck> {
         let matches = Matches::of(frame);
         let budget = self.max_iterations.max(1);
         // A short probe first: a frame whose best support after it is under half the bar is
         // hard (a true ratio at the bar is all but certain to show more by then) and goes on
         // at once; only frames near the bar get the whole budget.
         let probe = self.probe_iterations.clamp(1, budget);
-        let check = match self.attempt(frame, &matches, pnp, probe, seed)? {
+        let check = match self.attempt(frame, &matches, pnp, probe, gate)? {
             Ok(solution) => return Ok(solution),
             Err(check) => check,
         };
         if probe == budget || check.inlier_ratio < 0.5 * self.min_inlier_ratio {
             return Err(check);
         }
-        self.attempt(frame, &matches, pnp, budget, seed)?
+        self.attempt(frame, &matches, pnp, budget, gate)?
     }
 
     /// The last resort for a frame the rejection-guided path left without a pose: plain
     /// LO-RANSAC on every correspondence (sampled in the matcher's score order), `None` when it
     /// finds no consensus either or the step is off.
-    pub fn last_resort(&self, frame: &Frame, pnp: &PnpParams, seed: u64) -> Option<PnpSolution> {
+    pub fn last_resort(&self, frame: &Frame, pnp: &PnpParams, gate: Option<&PoseGate>) -> Option<PnpSolution> {
         if self.last_resort_iterations == 0 {
             return None;
         }
@@ -86,10 +92,9 @@ impl CascadeParams {
             max_iterations: self.last_resort_iterations,
             min_iterations: pnp.min_iterations.min(self.last_resort_iterations),
             coverage_cell_px: 0.0,
-            seed,
             ..pnp.clone()
         };
-        let guidance = Guidance { scores: Some(&matches.scores), ..Guidance::default() };
+        let guidance = Guidance { scores: Some(&matches.scores), gate, ..Guidance::default() };
         let problem = Problem { intrinsics: &frame.intrinsics, pixels: &matches.pixels, points: &matches.points };
         solve_pnp_ransac(&problem, &guidance, &params).ok()
     }
@@ -102,16 +107,15 @@ impl CascadeParams {
         matches: &Matches,
         pnp: &PnpParams,
         iterations: usize,
-        seed: u64,
+        gate: Option<&PoseGate>,
     ) -> Result<Result<PnpSolution, FastPathCheck>, FastPathCheck> {
         let params = PnpParams {
             max_iterations: iterations,
             min_iterations: pnp.min_iterations.min(iterations),
             coverage_cell_px: 0.0,
-            seed,
             ..pnp.clone()
         };
-        let guidance = Guidance { scores: Some(&matches.scores), ..Guidance::default() };
+        let guidance = Guidance { scores: Some(&matches.scores), gate, ..Guidance::default() };
         let problem = Problem { intrinsics: &frame.intrinsics, pixels: &matches.pixels, points: &matches.points };
         let solution = solve_pnp_ransac(&problem, &guidance, &params).map_err(|_| FastPathCheck::default())?;
         let cell_px = frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64;

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
-use crate::pnp::{solve_pnp_ransac, Guidance, PnpError, PnpParams, PnpSolution, Problem};
+use crate::pnp::{solve_pnp_ransac, Guidance, PnpError, PnpParams, PnpSolution, PoseGate, Problem};
 use crate::reject::network::{NetworkError, NetworkRejector};
 use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
 use crate::verify::{PriorVerifier, RenderMap};
@@ -140,6 +140,8 @@ pub struct Localizer {
     render_map: RenderMap,
     /// Per-frame buffers, refilled every frame (the rejector keeps its own).
     scratch: FrameScratch,
+    /// Poses outside this gate are not considered (e.g. an `/initialpose` prior).
+    pose_gate: Option<PoseGate>,
 }
 
 impl Localizer {
@@ -151,7 +153,13 @@ impl Localizer {
             Method::Consistency => Some(Box::new(SpectralRejector::new(params.spectral.clone()))),
             Method::AngleI2p => Some(Box::new(NetworkRejector::new(params.network.clone(), params.spectral.clone())?)),
         };
-        Ok(Self { params, rejector, render_map: RenderMap::default(), scratch: FrameScratch::default() })
+        Ok(Self {
+            params,
+            rejector,
+            render_map: RenderMap::default(),
+            scratch: FrameScratch::default(),
+            pose_gate: None,
+        })
     }
 
     /// The map frames are localized against (indexed here; see [`Localizer::set_map_index`]).
@@ -171,6 +179,12 @@ impl Localizer {
         } else {
             RenderMap::default()
         };
+    }
+
+    /// A prior on the pose (e.g. `/initialpose`): PnP considers only poses inside `gate`, on
+    /// every path of the cascade, until it is set to `None`.
+    pub fn set_pose_gate(&mut self, gate: Option<PoseGate>) {
+        self.pose_gate = gate;
     }
 
     pub fn params(&self) -> &LocalizerParams {
@@ -214,7 +228,8 @@ impl Localizer {
             return false;
         }
         let t = Instant::now();
-        let settled = p.cascade.settle(frame, &p.pnp.for_camera(frame.intrinsics.fx), p.seed);
+        let pnp = PnpParams { seed: p.seed, ..p.pnp.for_camera(frame.intrinsics.fx) };
+        let settled = p.cascade.settle(frame, &pnp, self.pose_gate.as_ref());
         out.timings.fast_path_ms = ms_since(t);
         let mut solution = match settled {
             Ok(solution) => solution,
@@ -279,6 +294,7 @@ impl Localizer {
             prior_depths: scratch.priors(),
             prior_space: scratch.geometry.prior_space,
             verification: verifier.as_ref().map(|v| self.params.verify.verification(v)),
+            gate: self.pose_gate.as_ref(),
         };
         let pnp = PnpParams { seed: self.params.seed, ..self.params.pnp.for_camera(frame.intrinsics.fx) };
         let problem = Problem { intrinsics: &frame.intrinsics, pixels: &scratch.pixels, points: &scratch.points };
@@ -318,7 +334,8 @@ impl Localizer {
     /// `out` then holds with its inliers as the kept set.
     fn last_resort(&self, frame: &Frame, out: &mut Localization) -> bool {
         let p = &self.params;
-        let Some(mut solution) = p.cascade.last_resort(frame, &p.pnp.for_camera(frame.intrinsics.fx), p.seed) else {
+        let pnp = PnpParams { seed: p.seed, ..p.pnp.for_camera(frame.intrinsics.fx) };
+        let Some(mut solution) = p.cascade.last_resort(frame, &pnp, self.pose_gate.as_ref()) else {
             return false;
         };
         if p.final_refine.enabled {

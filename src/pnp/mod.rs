@@ -27,6 +27,7 @@
 mod coverage;
 mod epnp;
 mod evaluator;
+mod gate;
 mod lm;
 mod nonminimal;
 mod ops;
@@ -44,6 +45,7 @@ use thiserror::Error;
 use crate::geometry::{Intrinsics, PriorSpace};
 
 pub use epnp::epnp;
+pub use gate::{GateMiss, PoseGate};
 pub use lm::{pose_covariance, refine_pose, RefineOptions, RefineResult};
 pub use nonminimal::solve_pnp_nonminimal;
 pub use p3p::{p3p, P3pSolutions};
@@ -232,6 +234,8 @@ pub struct Guidance<'a> {
     pub prior_depths: Option<&'a [f64]>,
     pub prior_space: PriorSpace,
     pub verification: Option<Verification<'a>>,
+    /// Poses outside this gate are never scored (see [`PoseGate`]).
+    pub gate: Option<&'a PoseGate>,
 }
 
 /// Result of [`solve_pnp_ransac`].

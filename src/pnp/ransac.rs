@@ -37,7 +37,7 @@ use crate::rng::WyRand;
 /// `max(4, min_inliers)` usable correspondences, coincident/collinear map points, or no pose
 /// with `min_inliers` inliers.
 pub fn solve_pnp_ransac(problem: &Problem, guidance: &Guidance, params: &PnpParams) -> Result<PnpSolution, PnpError> {
-    let Guidance { scores, prior_depths, prior_space, verification } = *guidance;
+    let Guidance { scores, prior_depths, prior_space, verification, gate } = *guidance;
     check_basic(problem.intrinsics, problem.pixels.len(), problem.points.len())?;
     check_guidance_length(problem, prior_depths.map(<[f64]>::len))?;
     check_guidance_length(problem, scores.map(<[f32]>::len))?;
@@ -72,6 +72,7 @@ pub fn solve_pnp_ransac(problem: &Problem, guidance: &Guidance, params: &PnpPara
         termination,
         rng,
         local_optimization: params.local_optimization,
+        gate,
         best: None,
         iterations: 0,
     };
@@ -88,6 +89,7 @@ struct Search<'a> {
     termination: Termination,
     rng: WyRand,
     local_optimization: bool,
+    gate: Option<&'a super::PoseGate>,
     best: Option<Hypothesis>,
     /// Minimal samples drawn.
     iterations: usize,
@@ -126,6 +128,9 @@ impl Search<'_> {
     /// best so far comes back locally optimised. With a pool, every pose that enters it is
     /// offered, and the local optimum too.
     fn consider(&mut self, pose: &MapToCamera, start: usize) -> Option<Hypothesis> {
+        if self.gate.is_some_and(|g| !g.admits(pose)) {
+            return None;
+        }
         let best = self.best.as_ref().map_or(Bound::NONE, Bound::of);
         let n = self.evaluator.data.len();
         let ev = &mut self.evaluator;
@@ -148,9 +153,14 @@ impl Search<'_> {
             }
             Scorer::Msac => msac_bounded(&ev.data, pose, best.cost, self.termination.sprt, start)?,
         };
-        let hypothesis = match self.local_optimization && hypothesis.inliers >= 4 {
+        let optimized = match self.local_optimization && hypothesis.inliers >= 4 {
             true => ev.local_optimization(hypothesis),
             false => hypothesis,
+        };
+        // A local optimum that leaves the gate is not taken; the hypothesis inside it is.
+        let hypothesis = match self.gate.is_some_and(|g| !g.admits(&optimized.pose)) {
+            true => hypothesis,
+            false => optimized,
         };
         if let (Some(p), Some(cov)) = (self.pool.as_mut(), ev.scorer.coverage()) {
             // The local optimum joins the pool (its cluster keeps the better of the two).

@@ -450,3 +450,41 @@ fn an_easy_frame_is_verified_once() {
     assert_eq!(verified.iterations, plain.iterations);
     assert!(pose_error(&verified.pose, &pose).0 < 0.01);
 }
+
+/// A prior pose gates the search: with 120 matches consistent with one pose and 60 with
+/// another 8 m away (a repeated structure), plain RANSAC returns the better supported one; with
+/// a gate around the other, RANSAC never scores a hypothesis outside it and returns that one.
+#[test]
+fn a_pose_gate_keeps_the_search_near_the_prior() {
+    let mut rng = WyRand::new(77);
+    let strong = random_pose(&mut rng);
+    let weak = Isometry3::from_parts(
+        Translation3::from(strong.translation.vector + Vector3::new(8.0, 0.0, 0.0)),
+        UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, 0.4)) * strong.rotation,
+    );
+    let (mut px, mut pw) = visible(&mut rng, &strong, 120, 0.5);
+    let (px_weak, pw_weak) = visible(&mut rng, &weak, 60, 0.5);
+    px.extend(px_weak);
+    pw.extend(pw_weak);
+    let (px_noise, pw_noise) = random_pixel_matches(&mut rng, &strong, 120);
+    px.extend(px_noise);
+    pw.extend(pw_noise);
+    let params = PnpParams::default();
+
+    let free = ransac(&k(), &px, &pw, None, &params, 3).unwrap();
+    assert!(pose_error(&free.pose, &strong).1 < 0.2, "without a gate the better supported pose wins");
+
+    let gate = PoseGate {
+        centre: Isometry3::from_parts(
+            Translation3::from(weak.translation.vector + Vector3::new(0.3, -0.2, 0.1)),
+            weak.rotation,
+        ),
+        radius_m: 1.0,
+        max_angle_rad: 0.2,
+    };
+    let guidance = Guidance { gate: Some(&gate), ..Guidance::default() };
+    let gated = ransac_guided(&k(), &px, &pw, &guidance, &params, 3).unwrap();
+    let (r, t) = pose_error(&gated.pose, &weak);
+    assert!(r < 5e-3 && t < 0.2, "{r} {t}");
+    assert!(gate.check(&gated.pose).is_ok());
+}

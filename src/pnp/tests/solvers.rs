@@ -127,4 +127,3 @@ fn lm_converges_from_perturbed_pose() {
         }
     }
 }
-
