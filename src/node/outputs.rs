@@ -16,7 +16,7 @@ use super::log::{lock, now_ns, warn};
 use super::tf::{FrameTf, TfBroadcast};
 use super::topics::Topics;
 use crate::bag::BagWriter;
-use crate::frame::Frame;
+use crate::frame::{Correspondence, Frame};
 use crate::msgs::{self, convert, RosMessage};
 use crate::params::NodeParams;
 use crate::pipeline::Localization;
@@ -170,10 +170,75 @@ impl Outputs {
 }
 
 /// The camera image (rgb8) with kept correspondences as green and rejected ones as red
-/// 5×5 squares.
+/// 5×5 squares, at the matcher's pixels of the (raw) image: a frame whose pixels were
+/// undistorted for the localizer (`frame.lens`) has them distorted back.
 fn debug_image(frame: &Frame, loc: &Localization) -> Result<msgs::Image> {
     let image = frame.image.as_ref().ok_or_else(|| anyhow!("no camera image for this frame"))?;
     let mut rgb = img::from_encoded(image).map_err(|e| anyhow!(e))?;
-    img::draw_matches(&mut rgb, &frame.correspondences, &loc.kept);
+    let in_image = |cs: &[Correspondence]| -> Vec<Correspondence> {
+        match &frame.lens {
+            Some(lens) => cs.iter().map(|c| Correspondence { pixel: lens.distort_pixel(&c.pixel), ..*c }).collect(),
+            None => cs.to_vec(),
+        }
+    };
+    img::draw_matches(&mut rgb, &in_image(&frame.correspondences), &in_image(&loc.kept));
     Ok(img::image_msg(loc.stamp, &loc.camera_frame_id, rgb))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{CameraModel, Distortion};
+    use crate::frame::CameraImage;
+    use crate::geometry::Intrinsics;
+    use crate::pipeline::{Method, StageTimings};
+    use nalgebra::{Point2, Point3};
+
+    #[test]
+    fn the_debug_image_draws_undistorted_matches_at_their_raw_pixels() {
+        let raw = Intrinsics { fx: 300.0, fy: 300.0, cx: 160.0, cy: 120.0, width: 320, height: 240 };
+        let lens =
+            CameraModel { raw, distortion: Distortion::PlumbBob([-0.3, 0.1, 0.0, 0.0, 0.0]), projection: [0.0; 12] };
+        // Near a corner, where the lens moves pixels most: the matcher saw (290, 220).
+        let seen = Point2::new(290.0, 220.0);
+        let ideal = lens.undistort_pixel(&seen).expect("inside the lens' range");
+        assert!((ideal - seen).norm() > 10.0, "the test needs a visible displacement");
+        let c = Correspondence { pixel: ideal, point: Point3::origin(), score: 1.0 };
+        let frame = Frame {
+            stamp: 1,
+            camera_frame_id: "cam".into(),
+            map_frame_id: "map".into(),
+            intrinsics: raw,
+            correspondences: vec![c],
+            depth_prior: None,
+            image: Some(CameraImage::Raw(image::RgbImage::new(320, 240))),
+            ground_truth: None,
+            lens: Some(lens),
+        };
+        let loc = Localization {
+            stamp: 1,
+            camera_frame_id: "cam".into(),
+            map_frame_id: "map".into(),
+            method: Method::AngleI2p,
+            pose: None,
+            covariance: None,
+            kept: vec![c],
+            num_inliers: 0,
+            pnp_iterations: 0,
+            scale_shift: None,
+            prior_quality: None,
+            fast_path: false,
+            fast_path_check: None,
+            last_resort: false,
+            timings: StageTimings::default(),
+            failure: None,
+        };
+        let msg = debug_image(&frame, &loc).expect("an image");
+        let at = |x: f64, y: f64| {
+            let i = (y.round() as usize * msg.width as usize + x.round() as usize) * 3;
+            [msg.data[i], msg.data[i + 1], msg.data[i + 2]]
+        };
+        assert_eq!(at(seen.x, seen.y), img::KEPT, "drawn where the matcher saw it");
+        assert_eq!(at(ideal.x, ideal.y), [0, 0, 0], "not at the undistorted pixel");
+    }
 }
