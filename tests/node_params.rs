@@ -6,14 +6,13 @@ mod common;
 mod netns;
 
 use std::path::Path;
-use std::process::{Command, Stdio};
+
 use std::time::{Duration, Instant};
 
 use angle_i2p::msgs;
 use angle_i2p::node::clock::{Clock, CLOCK_TOPIC};
 use angle_i2p::node::dds;
 use angle_i2p::node::services::SERVICE_MAPPING;
-use common::binary;
 use netns::{enter_netns, mark_done, run_in_netns, Guard};
 use ros2_client::parameters::{raw, ParameterValue};
 use ros2_client::rcl_interfaces::{
@@ -25,28 +24,11 @@ use ros2_client::{Message, MessageTypeName, NodeOptions, ServiceTypeName};
 const DOMAIN: &str = "21";
 
 fn start_node(log: &Path, args: &[&str]) -> Guard {
-    let log = std::fs::File::create(log).expect("node log");
-    let mut cmd = Command::new(binary());
-    cmd.arg("node").arg("--ros-args").args(args).env("ROS_DOMAIN_ID", DOMAIN).stdout(Stdio::null()).stderr(log);
-    Guard(cmd.spawn().expect("spawn angle-i2p node"))
+    netns::spawn_node(log, args, DOMAIN)
 }
 
 fn read(log: &Path) -> String {
-    std::fs::read_to_string(log).unwrap_or_default()
-}
-
-/// `fut`, or `None` after `limit` (a plain timer thread: the test has no async runtime).
-async fn with_timeout<F: std::future::Future>(fut: F, limit: Duration) -> Option<F::Output> {
-    let (tx, rx) = futures::channel::oneshot::channel::<()>();
-    std::thread::spawn(move || {
-        std::thread::sleep(limit);
-        let _ = tx.send(());
-    });
-    futures::pin_mut!(fut);
-    match futures::future::select(fut, rx).await {
-        futures::future::Either::Left((out, _)) => Some(out),
-        futures::future::Either::Right(_) => None,
-    }
+    netns::read_log(log)
 }
 
 /// A client of the `rcl_interfaces/<ty>` service `service`, once it has appeared (20 s at most).
@@ -65,7 +47,8 @@ fn client<Req: Message + Clone + 'static, Resp: Message + 'static>(
             qos,
         )
         .expect("client");
-    let appeared = futures::executor::block_on(with_timeout(client.wait_for_service(ros), Duration::from_secs(20)));
+    let appeared =
+        futures::executor::block_on(netns::with_timeout(client.wait_for_service(ros), Duration::from_secs(20)));
     assert!(appeared.is_some(), "{service} never appeared");
     client
 }
@@ -79,7 +62,7 @@ fn call<Req: Message + Clone + 'static, Resp: Message + 'static>(
 ) -> Resp {
     let end = Instant::now() + Duration::from_secs(30);
     while Instant::now() < end {
-        let answer = futures::executor::block_on(with_timeout(
+        let answer = futures::executor::block_on(netns::with_timeout(
             client.async_call_service(request.clone()),
             Duration::from_secs(3),
         ));
@@ -117,18 +100,6 @@ impl ParamClients {
         let mut r = call(&self.set, request, log);
         assert_eq!(r.results.len(), 1);
         r.results.remove(0)
-    }
-}
-
-fn wait_for(what: &str, logs: &[&Path], mut ok: impl FnMut() -> bool) {
-    let end = Instant::now() + Duration::from_secs(30);
-    while !ok() {
-        assert!(
-            Instant::now() < end,
-            "{what}: timed out\n{}",
-            logs.iter().map(|l| format!("{}:\n{}", l.display(), read(l))).collect::<Vec<_>>().join("\n")
-        );
-        std::thread::sleep(Duration::from_millis(50));
     }
 }
 
@@ -207,14 +178,14 @@ fn inner_ros_parameters_rosout_and_clock() {
     // Log lines reach /rosout under the node's logger name, the change among them; none of /cam6's.
     let rosout = ros.rosout_subscription().expect("rosout reader");
     let mut lines: Vec<(String, String)> = Vec::new();
-    wait_for("the parameter change on /rosout", &logs, || {
+    netns::wait_for("the parameter change on /rosout", &logs, || {
         while let Ok(Some((l, _))) = rosout.take() {
             lines.push((l.name, l.msg));
         }
         lines.iter().any(|(n, m)| n == "cam5.angle_i2p" && m.contains("parameter node.min_rate_hz set"))
     });
     // /cam6 has started (its start line is in its log), and had time to reach /rosout.
-    wait_for("/cam6 started", &logs, || read(&log6).contains("node /cam6/angle_i2p"));
+    netns::wait_for("/cam6 started", &logs, || read(&log6).contains("node /cam6/angle_i2p"));
     std::thread::sleep(Duration::from_millis(500));
     while let Ok(Some((l, _))) = rosout.take() {
         lines.push((l.name, l.msg));
@@ -227,7 +198,7 @@ fn inner_ros_parameters_rosout_and_clock() {
         d.status.iter().any(|s| s.hardware_id == "/cam5/angle_i2p").then(|| d.header.stamp.to_nanos())
     };
     let mut last = None;
-    wait_for("diagnostics stamped with /clock", &logs, || {
+    netns::wait_for("diagnostics stamped with /clock", &logs, || {
         clock_pub.publish(Clock { clock: msgs::Time::from_nanos(sim) }).expect("clock");
         while let Ok(Some((d, _))) = diag.take() {
             last = cam5_stamp(&d).or(last);
@@ -237,7 +208,7 @@ fn inner_ros_parameters_rosout_and_clock() {
     let ok = params.set("use_sim_time", ParameterValue::Boolean(false), &log5);
     assert!(ok.successful, "{ok:?}");
     let wall = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("clock").as_nanos() as i64;
-    wait_for("diagnostics stamped with wall time again", &logs, || {
+    netns::wait_for("diagnostics stamped with wall time again", &logs, || {
         while let Ok(Some((d, _))) = diag.take() {
             last = cam5_stamp(&d).or(last);
         }

@@ -14,20 +14,17 @@ use angle_i2p::msgs::{self, convert};
 use angle_i2p::node::dds;
 use angle_i2p::params::LocalizerParams;
 use angle_i2p::pipeline::{Localizer, Method};
-use common::{binary, manifest};
+use common::manifest;
 use netns::{enter_netns, mark_done, run_in_netns, Guard};
 
 const DOMAIN: &str = "19";
 
 fn start_node(log: &Path, args: &[&str]) -> Guard {
-    let log = std::fs::File::create(log).expect("node log");
-    let mut cmd = Command::new(binary());
-    cmd.arg("node").arg("--ros-args").args(args).env("ROS_DOMAIN_ID", DOMAIN).stdout(Stdio::null()).stderr(log);
-    Guard(cmd.spawn().expect("spawn angle-i2p node"))
+    netns::spawn_node(log, args, DOMAIN)
 }
 
 fn read(log: &Path) -> String {
-    std::fs::read_to_string(log).unwrap_or_default()
+    netns::read_log(log)
 }
 
 /// A numeric value of the diagnostics of node `fq_name` (0 when absent).
@@ -90,18 +87,6 @@ impl Camera {
     }
 }
 
-fn wait_for(what: &str, logs: &[&Path], mut ok: impl FnMut() -> bool) {
-    let end = Instant::now() + Duration::from_secs(30);
-    while !ok() {
-        assert!(
-            Instant::now() < end,
-            "{what}: timed out\n{}",
-            logs.iter().map(|l| read(l)).collect::<Vec<_>>().join("\n---\n")
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 #[test]
 fn live_namespaces_qos_and_ros_params() {
     run_in_netns("inner_namespaces_qos_and_ros_params");
@@ -161,7 +146,7 @@ fn inner_namespaces_qos_and_ros_params() {
     let root_pose =
         dds::subscription::<msgs::PoseStamped>(&mut ros, "/angle_i2p/pose", &dds::reliable(10)).expect("sub");
     let diag = dds::subscription::<msgs::DiagnosticArray>(&mut ros, "/diagnostics", &dds::reliable(50)).expect("sub");
-    wait_for("the namespaced nodes' readers match", &log_refs, || cams.iter().all(|c| c.matched(&ros)));
+    netns::wait_for("the namespaced nodes' readers match", &log_refs, || cams.iter().all(|c| c.matched(&ros)));
     std::thread::sleep(Duration::from_millis(300));
     for c in &cams[..2] {
         c.map.publish(convert::point_cloud(frame.stamp, &map)).expect("map");
@@ -172,7 +157,7 @@ fn inner_namespaces_qos_and_ros_params() {
     let stamps = [frame.stamp + 1_000_000_000, frame.stamp + 2_000_000_000, frame.stamp + 3_000_000_000];
     let mut got: [Option<msgs::PoseStamped>; 3] = [None, None, None];
     let mut next_send = Instant::now();
-    wait_for("a pose from each namespaced node", &log_refs, || {
+    netns::wait_for("a pose from each namespaced node", &log_refs, || {
         // Best effort: resend until the node has the map and answers.
         if Instant::now() >= next_send {
             for (c, s) in cams.iter().zip(stamps) {
@@ -204,7 +189,7 @@ fn inner_namespaces_qos_and_ros_params() {
     let mut incompatible = 0;
     let mut cam0_info_heard = false;
     let mut cam2_level = None;
-    wait_for("the latched-only node counts the incompatible map publisher", &log_refs, || {
+    netns::wait_for("the latched-only node counts the incompatible map publisher", &log_refs, || {
         while let Ok(Some((d, _))) = diag.take() {
             incompatible = incompatible.max(diag_of(&d, "/cam2/angle_i2p", "error.incompatible_qos"));
             for s in &d.status {
@@ -234,7 +219,7 @@ fn inner_namespaces_qos_and_ros_params() {
     // An /initialpose far from the camera withholds /cam0's next pose; ~/relocalize drops it.
     let initial = dds::publisher::<msgs::PoseWithCovarianceStamped>(&mut ros, "/cam0/initialpose", &dds::reliable(10))
         .expect("pub");
-    wait_for("the initialpose reader matches", &log_refs, || initial.get_subscription_count(&ros) > 0);
+    netns::wait_for("the initialpose reader matches", &log_refs, || initial.get_subscription_count(&ros) > 0);
     std::thread::sleep(Duration::from_millis(300));
     let far = nalgebra::Isometry3::translation(want.translation.x + 10.0, want.translation.y, want.translation.z);
     let mut covariance = [0.0; 36];
@@ -255,7 +240,7 @@ fn inner_namespaces_qos_and_ros_params() {
     }
     let mut gated = 0;
     let mut next_send = Instant::now();
-    wait_for("the far initial pose withholds the pose", &log_refs, || {
+    netns::wait_for("the far initial pose withholds the pose", &log_refs, || {
         if Instant::now() >= next_send {
             cams[0].publish_frame(&frame, gated_stamp);
             next_send = Instant::now() + Duration::from_secs(1);
@@ -275,7 +260,7 @@ fn inner_namespaces_qos_and_ros_params() {
     let free_stamp = frame.stamp + 9_000_000_000;
     let mut freed = false;
     let mut next_send = Instant::now();
-    wait_for("a pose again after ~/relocalize", &log_refs, || {
+    netns::wait_for("a pose again after ~/relocalize", &log_refs, || {
         if Instant::now() >= next_send {
             cams[0].publish_frame(&frame, free_stamp);
             next_send = Instant::now() + Duration::from_secs(1);
@@ -352,14 +337,14 @@ fn inner_python_matcher_example() {
     let mut ros = dds::node(&context, "/", "example_test").expect("node");
     let _spinner = dds::spawn_spinner(&mut ros).expect("spinner");
     let cam = Camera::new(&mut ros, "/cam5");
-    wait_for("the node's readers match", &[&log], || {
+    netns::wait_for("the node's readers match", &[&log], || {
         cam.info.get_subscription_count(&ros) > 0 && cam.map.get_subscription_count(&ros) > 0
     });
     std::thread::sleep(Duration::from_millis(300));
     cam.map.publish(convert::point_cloud(frame.stamp, &map)).expect("map");
     let mut next_send = Instant::now();
     let mut pose = None;
-    wait_for("a pose for the example matcher's frame", &[&log], || {
+    netns::wait_for("a pose for the example matcher's frame", &[&log], || {
         if Instant::now() >= next_send {
             let info = convert::camera_info(stamp, &frame.camera_frame_id, &frame.intrinsics);
             cam.info.publish(info).expect("info");
@@ -379,20 +364,6 @@ fn inner_python_matcher_example() {
     let status = netns::wait_bounded(&mut matcher.0, Duration::from_secs(30)).expect("the matcher exits");
     assert!(status.success(), "the example matcher failed: {status}");
     mark_done();
-}
-
-/// `fut`, or `None` after `limit` (a plain timer thread: the test has no async runtime).
-async fn with_timeout<F: std::future::Future>(fut: F, limit: Duration) -> Option<F::Output> {
-    let (tx, rx) = futures::channel::oneshot::channel::<()>();
-    std::thread::spawn(move || {
-        std::thread::sleep(limit);
-        let _ = tx.send(());
-    });
-    futures::pin_mut!(fut);
-    match futures::future::select(fut, rx).await {
-        futures::future::Either::Left((out, _)) => Some(out),
-        futures::future::Either::Right(_) => None,
-    }
 }
 
 /// Calls the std_srvs/Trigger `service` and returns its answer (20 s at most each for the
@@ -415,8 +386,8 @@ fn trigger(
         )
         .expect("client");
     let answer = futures::executor::block_on(async {
-        with_timeout(client.wait_for_service(ros), Duration::from_secs(20)).await.expect("the service appears");
-        with_timeout(client.async_call_service(TriggerRequest::default()), Duration::from_secs(20)).await
+        netns::with_timeout(client.wait_for_service(ros), Duration::from_secs(20)).await.expect("the service appears");
+        netns::with_timeout(client.async_call_service(TriggerRequest::default()), Duration::from_secs(20)).await
     });
     match answer {
         Some(Ok(r)) => r,

@@ -191,7 +191,7 @@ mod tests {
     use crate::camera::{CameraModel, Distortion};
     use crate::frame::CameraImage;
     use crate::geometry::Intrinsics;
-    use crate::pipeline::{Method, StageTimings};
+    use crate::pipeline::Method;
     use nalgebra::{Point2, Point3};
 
     #[test]
@@ -215,24 +215,7 @@ mod tests {
             ground_truth: None,
             lens: Some(lens),
         };
-        let loc = Localization {
-            stamp: 1,
-            camera_frame_id: "cam".into(),
-            map_frame_id: "map".into(),
-            method: Method::AngleI2p,
-            pose: None,
-            covariance: None,
-            kept: vec![c],
-            num_inliers: 0,
-            pnp_iterations: 0,
-            scale_shift: None,
-            prior_quality: None,
-            fast_path: false,
-            fast_path_check: None,
-            last_resort: false,
-            timings: StageTimings::default(),
-            failure: None,
-        };
+        let loc = Localization { kept: vec![c], ..Localization::nothing_yet(&frame, Method::AngleI2p) };
         let msg = debug_image(&frame, &loc).expect("an image");
         let at = |x: f64, y: f64| {
             let i = (y.round() as usize * msg.width as usize + x.round() as usize) * 3;

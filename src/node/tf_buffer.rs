@@ -227,4 +227,4 @@ impl TfHistory {
 
 #[cfg(test)]
 #[path = "tf_buffer_tests.rs"]
-mod tests;
+pub(crate) mod tests;

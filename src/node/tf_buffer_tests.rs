@@ -3,14 +3,15 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use super::*;
 use crate::node::tf::{map_to_odom, tf_message};
 
-fn iso(t: [f64; 3], axis: [f64; 3], angle: f64) -> Isometry3<f64> {
+/// A transform from a translation and a rotation about `axis` (shared with the TF tests).
+pub(crate) fn iso(t: [f64; 3], axis: [f64; 3], angle: f64) -> Isometry3<f64> {
     Isometry3::from_parts(
         Translation3::new(t[0], t[1], t[2]),
         UnitQuaternion::from_scaled_axis(Vector3::from(axis).normalize() * angle),
     )
 }
 
-fn close(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
+pub(crate) fn close(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     (a.translation.vector - b.translation.vector).norm() < 1e-9 && a.rotation.angle_to(&b.rotation) < 1e-9
 }
 

@@ -1,22 +1,12 @@
 //! What [`TfBroadcast`] sends for a localized frame, in each mode, from transforms heard.
 
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::Isometry3;
 
 use super::*;
+use crate::node::tf_buffer::tests::{close, iso};
 
 const S: i64 = 1_000_000_000;
 const CAM: &str = "camera_optical";
-
-fn iso(t: [f64; 3], axis: [f64; 3], angle: f64) -> Isometry3<f64> {
-    Isometry3::from_parts(
-        Translation3::new(t[0], t[1], t[2]),
-        UnitQuaternion::from_scaled_axis(Vector3::from(axis).normalize() * angle),
-    )
-}
-
-fn close(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
-    (a.translation.vector - b.translation.vector).norm() < 1e-9 && a.rotation.angle_to(&b.rotation) < 1e-9
-}
 
 fn transform_of(m: &TFMessage) -> (Stamp, String, String, Isometry3<f64>) {
     let t = &m.transforms[0];

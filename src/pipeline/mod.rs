@@ -124,6 +124,30 @@ pub struct Localization {
     pub failure: Option<Failure>,
 }
 
+impl Localization {
+    /// A frame's result before any step ran: no pose, nothing kept, no failure.
+    pub fn nothing_yet(frame: &Frame, method: Method) -> Self {
+        Self {
+            stamp: frame.stamp,
+            camera_frame_id: frame.camera_frame_id.clone(),
+            map_frame_id: frame.map_frame_id.clone(),
+            method,
+            pose: None,
+            covariance: None,
+            kept: Vec::new(),
+            num_inliers: 0,
+            pnp_iterations: 0,
+            scale_shift: None,
+            prior_quality: None,
+            fast_path: false,
+            fast_path_check: None,
+            last_resort: false,
+            timings: StageTimings::default(),
+            failure: None,
+        }
+    }
+}
+
 /// Why a localizer cannot be set up for its method.
 #[derive(Debug, Clone, thiserror::Error)]
 pub enum SetupError {
@@ -193,24 +217,7 @@ impl Localizer {
 
     pub fn process(&mut self, frame: &Frame) -> Localization {
         let start = Instant::now();
-        let mut out = Localization {
-            stamp: frame.stamp,
-            camera_frame_id: frame.camera_frame_id.clone(),
-            map_frame_id: frame.map_frame_id.clone(),
-            method: self.params.method,
-            pose: None,
-            covariance: None,
-            kept: Vec::new(),
-            num_inliers: 0,
-            pnp_iterations: 0,
-            scale_shift: None,
-            prior_quality: None,
-            fast_path: false,
-            fast_path_check: None,
-            last_resort: false,
-            timings: StageTimings::default(),
-            failure: None,
-        };
+        let mut out = Localization::nothing_yet(frame, self.params.method);
         if let Err(failure) = self.validate(frame) {
             out.failure = Some(failure);
         } else if !self.fast_path(frame, &mut out) {

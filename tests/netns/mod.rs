@@ -85,3 +85,43 @@ impl Drop for Guard {
         }
     }
 }
+
+/// `angle-i2p node --ros-args ARGS` on DDS domain `domain`, its log (stderr) in `log`.
+pub fn spawn_node(log: &std::path::Path, args: &[&str], domain: &str) -> Guard {
+    let log = std::fs::File::create(log).expect("node log");
+    let mut cmd = Command::new(crate::common::binary());
+    cmd.arg("node").arg("--ros-args").args(args).env("ROS_DOMAIN_ID", domain).stdout(Stdio::null()).stderr(log);
+    Guard(cmd.spawn().expect("spawn angle-i2p node"))
+}
+
+/// A node's log so far (empty when it cannot be read).
+pub fn read_log(log: &std::path::Path) -> String {
+    std::fs::read_to_string(log).unwrap_or_default()
+}
+
+/// `fut`, or `None` after `limit` (a plain timer thread: the test has no async runtime).
+pub async fn with_timeout<F: std::future::Future>(fut: F, limit: Duration) -> Option<F::Output> {
+    let (tx, rx) = futures::channel::oneshot::channel::<()>();
+    std::thread::spawn(move || {
+        std::thread::sleep(limit);
+        let _ = tx.send(());
+    });
+    futures::pin_mut!(fut);
+    match futures::future::select(fut, rx).await {
+        futures::future::Either::Left((out, _)) => Some(out),
+        futures::future::Either::Right(_) => None,
+    }
+}
+
+/// Waits until `ok` (polled every 50 ms), failing after 30 s with the nodes' logs.
+pub fn wait_for(what: &str, logs: &[&std::path::Path], mut ok: impl FnMut() -> bool) {
+    let end = Instant::now() + Duration::from_secs(30);
+    while !ok() {
+        assert!(
+            Instant::now() < end,
+            "{what}: timed out\n{}",
+            logs.iter().map(|l| format!("{}:\n{}", l.display(), read_log(l))).collect::<Vec<_>>().join("\n")
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
