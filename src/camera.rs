@@ -206,6 +206,9 @@ pub struct CameraModel {
     pub distortion: Distortion,
     /// P as sent (row-major 3×4); all zero when the driver left it empty.
     pub projection: [f64; 12],
+    /// A distortion model this build does not know (`distortion` is then `None`): raw pixels
+    /// of such a camera are refused with its name, rectified ones (which do not use D) are fine.
+    pub unsupported_model: Option<String>,
 }
 
 impl CameraModel {
@@ -213,14 +216,15 @@ impl CameraModel {
     pub fn pinhole(intrinsics: Intrinsics) -> Self {
         let k = &intrinsics;
         let projection = [k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0];
-        Self { raw: intrinsics, distortion: Distortion::None, projection }
+        Self { raw: intrinsics, distortion: Distortion::None, projection, unsupported_model: None }
     }
 
     /// The pinhole camera the core works in for pixels in `space`.
     pub fn core_intrinsics(&self, space: PixelSpace) -> Result<Intrinsics, CameraModelError> {
-        match space {
-            PixelSpace::Raw => Ok(self.raw),
-            PixelSpace::Rectified => self.rectified_intrinsics(),
+        match (space, &self.unsupported_model) {
+            (PixelSpace::Raw, Some(model)) => Err(CameraModelError::UnknownModel { model: model.clone() }),
+            (PixelSpace::Raw, None) => Ok(self.raw),
+            (PixelSpace::Rectified, _) => self.rectified_intrinsics(),
         }
     }
 

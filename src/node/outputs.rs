@@ -197,8 +197,12 @@ mod tests {
     #[test]
     fn the_debug_image_draws_undistorted_matches_at_their_raw_pixels() {
         let raw = Intrinsics { fx: 300.0, fy: 300.0, cx: 160.0, cy: 120.0, width: 320, height: 240 };
-        let lens =
-            CameraModel { raw, distortion: Distortion::PlumbBob([-0.3, 0.1, 0.0, 0.0, 0.0]), projection: [0.0; 12] };
+        let lens = CameraModel {
+            raw,
+            distortion: Distortion::PlumbBob([-0.3, 0.1, 0.0, 0.0, 0.0]),
+            projection: [0.0; 12],
+            unsupported_model: None,
+        };
         // Near a corner, where the lens moves pixels most: the matcher saw (290, 220).
         let seen = Point2::new(290.0, 220.0);
         let ideal = lens.undistort_pixel(&seen).expect("inside the lens' range");

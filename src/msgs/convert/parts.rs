@@ -8,7 +8,7 @@ use super::{
     compressed_image, correspondences_from_msg, depth_from_image, encoded_image, intrinsics_from_camera_info,
     isometry_from_pose, map_cloud_from_point_cloud, stamp,
 };
-use crate::camera::{CameraModel, Distortion};
+use crate::camera::{CameraModel, CameraModelError, Distortion};
 use crate::frame::{CameraImage, EncodedImage, FramePart, MapCloud, Stamp};
 use crate::limits::InputLimits;
 use crate::msgs::{CameraInfo, CompressedImage, Correspondences, Image, MsgError, PointCloud2, PoseStamped};
@@ -22,9 +22,14 @@ fn check_side(what: &'static str, width: u32, height: u32, limits: &InputLimits)
 pub fn camera_info_part(msg: &CameraInfo, limits: &InputLimits) -> Result<FramePart, MsgError> {
     check_side("CameraInfo", msg.width, msg.height, limits)?;
     let raw = intrinsics_from_camera_info(msg)?;
-    let distortion = Distortion::from_ros(&msg.distortion_model, &msg.d)
-        .map_err(|e| MsgError::Invalid { what: "CameraInfo", reason: e.to_string() })?;
-    Ok(FramePart::CameraInfo { stamp: stamp(&msg.header), camera: CameraModel { raw, distortion, projection: msg.p } })
+    // A model this build does not know is refused only where D is used (raw pixels).
+    let (distortion, unsupported_model) = match Distortion::from_ros(&msg.distortion_model, &msg.d) {
+        Ok(distortion) => (distortion, None),
+        Err(CameraModelError::UnknownModel { model }) => (Distortion::None, Some(model)),
+        Err(e) => return Err(MsgError::Invalid { what: "CameraInfo", reason: e.to_string() }),
+    };
+    let camera = CameraModel { raw, distortion, projection: msg.p, unsupported_model };
+    Ok(FramePart::CameraInfo { stamp: stamp(&msg.header), camera })
 }
 
 /// An `angle_i2p_msgs/Correspondences` → the frame's putative matches (its `header.frame_id`
@@ -120,6 +125,17 @@ mod tests {
         let limits = InputLimits::default();
         let info = super::super::camera_info(42, "cam", &k);
         assert!(matches!(camera_info_part(&info, &limits), Ok(FramePart::CameraInfo { stamp: 42, .. })));
+        // A distortion model this build does not know travels as such: refused for raw pixels
+        // (where D is used), fine for rectified ones.
+        let mut kannala = info.clone();
+        kannala.distortion_model = "kannala_brandt".into();
+        kannala.d = vec![0.1, 0.01, 0.0, 0.0];
+        let Ok(FramePart::CameraInfo { camera, .. }) = camera_info_part(&kannala, &limits) else {
+            panic!("an unknown model is not refused at the message");
+        };
+        assert_eq!(camera.unsupported_model.as_deref(), Some("kannala_brandt"));
+        assert!(camera.core_intrinsics(crate::camera::PixelSpace::Raw).unwrap_err().to_string().contains("kannala"));
+        assert_eq!(camera.core_intrinsics(crate::camera::PixelSpace::Rectified).unwrap(), k, "P empty: K");
         let mut huge = info.clone();
         huge.width = limits.max_image_side + 1;
         let err = camera_info_part(&huge, &limits).unwrap_err().to_string();
