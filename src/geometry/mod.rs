@@ -198,6 +198,24 @@ pub fn centroid(points: &[Point3<f64>]) -> Point3<f64> {
     Point3::from(sum / points.len() as f64)
 }
 
+/// Points sampled (evenly) to measure a cloud's point spacing.
+const SPACING_SAMPLES: usize = 1000;
+
+/// A cloud's typical point spacing: the median, over an even sample of its `len` points, of
+/// `gap(i)` — the distance from point `i` to its nearest other point (`None`: no neighbour).
+/// 0 when no sampled point has one.
+pub fn median_point_gap(len: usize, gap: impl Fn(usize) -> Option<f32> + Sync) -> f32 {
+    use rayon::prelude::*;
+    let step = (len / SPACING_SAMPLES).max(1);
+    let samples: Vec<usize> = (0..len).step_by(step).collect();
+    let mut gaps: Vec<f32> = samples.par_iter().filter_map(|&i| gap(i)).filter(|d| d.is_finite()).collect();
+    if gaps.is_empty() {
+        return 0.0;
+    }
+    let mid = gaps.len() / 2;
+    *gaps.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
 /// A k-d tree over 3D points for k-nearest-neighbour queries.
 pub struct PointIndex {
     tree: Option<ImmutableKdTree<f32, 3>>,

@@ -44,9 +44,6 @@ pub const NORMAL_NEIGHBOURS: usize = 16;
 /// 30 cm apart) searches as far, in points, as a dense one (2 cm).
 pub const NORMAL_SEARCH_SPACINGS: f32 = 8.0;
 
-/// Map points sampled (evenly) to measure the map's point spacing.
-const SPACING_SAMPLES: usize = 1000;
-
 /// How the map is bucketed for culling, and from what size it is treated as a building.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IndexSettings {
@@ -251,15 +248,7 @@ impl CulledRender {
 /// The map's typical point spacing: the median distance from an even sample of its points to
 /// their nearest other point in the same voxel (metres; 0 for fewer than two points).
 fn point_spacing(points: &[Point3<f32>], grid: &VoxelGrid) -> f32 {
-    let step = (points.len() / SPACING_SAMPLES).max(1);
-    let samples: Vec<usize> = (0..points.len()).step_by(step).collect();
-    let mut gaps: Vec<f32> =
-        samples.par_iter().filter_map(|&i| grid.gap_in_voxel(i, points.get(i)?)).filter(|d| d.is_finite()).collect();
-    if gaps.is_empty() {
-        return 0.0;
-    }
-    let mid = gaps.len() / 2;
-    *gaps.select_nth_unstable_by(mid, f32::total_cmp).1
+    crate::geometry::median_point_gap(points.len(), |i| grid.gap_in_voxel(i, points.get(i)?))
 }
 
 /// Diagonal of the bounding box of the finite points (0 when fewer than two).

@@ -137,18 +137,10 @@ impl RenderMap {
         let points: Vec<Point3<f32>> =
             self.x.iter().zip(&self.y).zip(&self.z).map(|((&x, &y), &z)| Point3::new(x, y, z)).collect();
         let tree = crate::geometry::PointIndex::new(&points);
-        let step = (points.len() / SPACING_SAMPLES).max(1);
-        let mut gaps: Vec<f32> = points
-            .iter()
-            .step_by(step)
-            .filter_map(|p| points.get(*tree.nearest(p, 2).get(1)?).map(|q| (q - p).norm()))
-            .filter(|d| d.is_finite())
-            .collect();
-        if gaps.is_empty() {
-            return 0.0;
-        }
-        let mid = gaps.len() / 2;
-        *gaps.select_nth_unstable_by(mid, f32::total_cmp).1
+        crate::geometry::median_point_gap(points.len(), |i| {
+            let p = points.get(i)?;
+            points.get(*tree.nearest(p, 2).get(1)?).map(|q| (q - p).norm())
+        })
     }
 
     /// Renders what `culled` finds in view at each pose.
@@ -172,9 +164,6 @@ impl RenderMap {
         }
     }
 }
-
-/// Rendered points sampled to measure their spacing.
-const SPACING_SAMPLES: usize = 1000;
 
 /// A splat covers at most this many cells on each side of its centre.
 const MAX_SPLAT_CELLS: f32 = 8.0;
