@@ -87,16 +87,7 @@ impl CascadeParams {
         if self.last_resort_iterations == 0 {
             return None;
         }
-        let matches = Matches::of(frame);
-        let params = PnpParams {
-            max_iterations: self.last_resort_iterations,
-            min_iterations: pnp.min_iterations.min(self.last_resort_iterations),
-            coverage_cell_px: 0.0,
-            ..pnp.clone()
-        };
-        let guidance = Guidance { scores: Some(&matches.scores), gate, ..Guidance::default() };
-        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &matches.pixels, points: &matches.points };
-        solve_pnp_ransac(&problem, &guidance, &params).ok()
+        Matches::of(frame).lo_ransac(frame, pnp, self.last_resort_iterations, gate).ok()
     }
 
     /// LO-RANSAC on every correspondence with at most `iterations` hypotheses: `Ok(Ok(pose))`
@@ -109,15 +100,7 @@ impl CascadeParams {
         iterations: usize,
         gate: Option<&PoseGate>,
     ) -> Result<Result<PnpSolution, FastPathCheck>, FastPathCheck> {
-        let params = PnpParams {
-            max_iterations: iterations,
-            min_iterations: pnp.min_iterations.min(iterations),
-            coverage_cell_px: 0.0,
-            ..pnp.clone()
-        };
-        let guidance = Guidance { scores: Some(&matches.scores), gate, ..Guidance::default() };
-        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &matches.pixels, points: &matches.points };
-        let solution = solve_pnp_ransac(&problem, &guidance, &params).map_err(|_| FastPathCheck::default())?;
+        let solution = matches.lo_ransac(frame, pnp, iterations, gate).map_err(|_| FastPathCheck::default())?;
         let cell_px = frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64;
         let pixels = &matches.pixels;
         let all = cells_covered(pixels.iter(), cell_px);
@@ -146,6 +129,26 @@ impl Matches {
             points: frame.correspondences.iter().map(|c| c.point).collect(),
             scores: frame.correspondences.iter().map(|c| c.score).collect(),
         }
+    }
+
+    /// Plain LO-RANSAC on these matches (PROSAC by the matcher's scores, inlier count, no
+    /// coverage or verification) with at most `iterations` hypotheses, inside `gate` if any.
+    fn lo_ransac(
+        &self,
+        frame: &Frame,
+        pnp: &PnpParams,
+        iterations: usize,
+        gate: Option<&PoseGate>,
+    ) -> Result<PnpSolution, crate::pnp::PnpError> {
+        let params = PnpParams {
+            max_iterations: iterations,
+            min_iterations: pnp.min_iterations.min(iterations),
+            coverage_cell_px: 0.0,
+            ..pnp.clone()
+        };
+        let guidance = Guidance { scores: Some(&self.scores), gate, ..Guidance::default() };
+        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &self.pixels, points: &self.points };
+        solve_pnp_ransac(&problem, &guidance, &params)
     }
 }
 

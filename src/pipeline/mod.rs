@@ -235,22 +235,17 @@ impl Localizer {
             return false;
         }
         let t = Instant::now();
-        let pnp = PnpParams { seed: p.seed, ..p.pnp.for_camera(frame.intrinsics.fx) };
-        let settled = p.cascade.settle(frame, &pnp, self.pose_gate.as_ref());
+        let settled = p.cascade.settle(frame, &self.pnp_params(frame), self.pose_gate.as_ref());
         out.timings.fast_path_ms = ms_since(t);
-        let mut solution = match settled {
+        let solution = match settled {
             Ok(solution) => solution,
             Err(check) => {
                 out.fast_path_check = Some(check);
                 return false;
             }
         };
-        if p.final_refine.enabled {
-            self.refine_on_all(frame, &mut solution);
-        }
         out.fast_path = true;
-        out.kept = inliers_of(frame, &solution);
-        self.accept(&solution, self.verifier(frame).as_ref(), out);
+        self.accept_plain(frame, solution, out);
         out.timings.pnp_ms = out.timings.fast_path_ms;
         true
     }
@@ -303,7 +298,7 @@ impl Localizer {
             verification: verifier.as_ref().map(|v| self.params.verify.verification(v)),
             gate: self.pose_gate.as_ref(),
         };
-        let pnp = PnpParams { seed: self.params.seed, ..self.params.pnp.for_camera(frame.intrinsics.fx) };
+        let pnp = self.pnp_params(frame);
         let problem = Problem { intrinsics: &frame.intrinsics, pixels: &scratch.pixels, points: &scratch.points };
         let solved = solve_pnp_ransac(&problem, &guidance, &pnp);
         let subset = &scratch.subset;
@@ -340,18 +335,28 @@ impl Localizer {
     /// The cascade's last step ([`CascadeParams::last_resort`]): whether it found the pose, which
     /// `out` then holds with its inliers as the kept set.
     fn last_resort(&self, frame: &Frame, out: &mut Localization) -> bool {
-        let p = &self.params;
-        let pnp = PnpParams { seed: p.seed, ..p.pnp.for_camera(frame.intrinsics.fx) };
-        let Some(mut solution) = p.cascade.last_resort(frame, &pnp, self.pose_gate.as_ref()) else {
+        let gate = self.pose_gate.as_ref();
+        let Some(solution) = self.params.cascade.last_resort(frame, &self.pnp_params(frame), gate) else {
             return false;
         };
-        if p.final_refine.enabled {
+        out.last_resort = true;
+        self.accept_plain(frame, solution, out);
+        true
+    }
+
+    /// A pose plain LO-RANSAC found on every correspondence (the fast path, the last resort):
+    /// refined on all that agree, its inliers the kept set.
+    fn accept_plain(&self, frame: &Frame, mut solution: PnpSolution, out: &mut Localization) {
+        if self.params.final_refine.enabled {
             self.refine_on_all(frame, &mut solution);
         }
         out.kept = inliers_of(frame, &solution);
-        out.last_resort = true;
         self.accept(&solution, self.verifier(frame).as_ref(), out);
-        true
+    }
+
+    /// PnP's parameters for the frame's camera, with the localizer's seed.
+    fn pnp_params(&self, frame: &Frame) -> PnpParams {
+        PnpParams { seed: self.params.seed, ..self.params.pnp.for_camera(frame.intrinsics.fx) }
     }
 
     /// Fills `out` with the solved pose, and the prior's quality at it.
