@@ -172,12 +172,12 @@ pub fn estimate_scale_shift(
         })
         .collect();
 
-    let mut votes = ScaleVotes::new(params.log_scale_window);
-    let mut vote = |t: f64| -> Option<Vote> {
+    let vote = |t: f64| -> Option<Vote> {
+        let mut votes = ScaleVotes::new(params.log_scale_window);
         cast_votes(&terms, space, t, &mut votes);
         votes.densest().map(|(count, log_scale)| Vote { count, scale: log_scale.exp(), shift: t })
     };
-    let best = search_shift(&mut vote, params.shift_range * median_x, params)?;
+    let best = search_shift(&vote, params.shift_range * median_x, params)?;
     // depth = s·(x + t) = s·x + s·t; 1/depth = (x + t)/s.
     let mut estimate = match space {
         PriorSpace::Depth => {
@@ -231,26 +231,28 @@ struct Vote {
 }
 
 /// Coarse-to-fine search over the shift in ±`range`: a coarse grid, then a fine one around its
-/// best; the shift with the most votes wins.
-fn search_shift(vote: &mut impl FnMut(f64) -> Option<Vote>, range: f64, params: &ScaleShiftParams) -> Option<Vote> {
+/// best; the shift with the most votes wins (the first of equals, in the order listed). The
+/// shifts of a grid are voted on in parallel, each with its own histogram, and compared in
+/// order, so the result does not depend on the threads.
+fn search_shift(vote: &(impl Fn(f64) -> Option<Vote> + Sync), range: f64, params: &ScaleShiftParams) -> Option<Vote> {
+    use rayon::prelude::*;
     let steps = params.shift_steps.max(1);
     let step = if steps > 1 { 2.0 * range / (steps - 1) as f64 } else { 0.0 };
     let better = |a: Option<Vote>, b: Option<Vote>| match (a, b) {
         (Some(x), Some(y)) => Some(if y.count > x.count { y } else { x }),
         (x, y) => x.or(y),
     };
-    let mut best = None;
-    for k in 0..steps {
-        best = better(best, vote(-range + step * k as f64));
-    }
-    if let Some(centre) = best.map(|b| b.shift) {
-        for k in 1..=params.fine_steps {
-            let offset = step * k as f64 / (params.fine_steps + 1) as f64;
-            best = better(best, vote(centre - offset));
-            best = better(best, vote(centre + offset));
-        }
-    }
-    best
+    let best_of = |best: Option<Vote>, shifts: Vec<f64>| -> Option<Vote> {
+        let votes: Vec<Option<Vote>> = shifts.into_par_iter().map(vote).collect();
+        votes.into_iter().fold(best, better)
+    };
+    let best = best_of(None, (0..steps).map(|k| -range + step * k as f64).collect());
+    let Some(centre) = best.map(|b| b.shift) else { return best };
+    let fine = (1..=params.fine_steps).flat_map(|k| {
+        let offset = step * k as f64 / (params.fine_steps + 1) as f64;
+        [centre - offset, centre + offset]
+    });
+    best_of(best, fine.collect())
 }
 
 /// The voting pairs with what the refinement needs of them.

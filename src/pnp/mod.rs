@@ -169,7 +169,9 @@ pub struct Problem<'a> {
 
 /// Evidence about a camera-to-map pose beyond the correspondences, e.g. how the map rendered at
 /// it agrees with a dense depth prior, counted over image cells.
-pub trait PoseVerifier {
+/// Verifies a pose against evidence beyond the correspondences; `Sync`, since the candidates of
+/// one check are verified in parallel.
+pub trait PoseVerifier: Sync {
     fn verify(&self, pose: &Isometry3<f64>) -> Agreement;
 }
 

@@ -78,26 +78,44 @@ impl<'a> Pool<'a> {
         self.items.push(candidate);
     }
 
-    /// The agreement of candidate `i`, verified once: after local optimisation (optional).
-    fn verify(&mut self, i: usize, evaluator: &mut Evaluator) -> Agreement {
+    /// Candidate `i` made ready for verification: locally optimised once (optional).
+    fn optimize(&mut self, i: usize, evaluator: &mut Evaluator) {
         let c = &mut self.items[i];
-        if let Some(agreement) = c.agreement {
-            return agreement;
-        }
-        if self.local_optimize {
+        if c.agreement.is_none() && self.local_optimize {
             let lo = evaluator.local_optimization(c.hypothesis);
             // The cluster test keeps comparing the inliers it was offered with.
             c.hypothesis = Hypothesis { inliers: c.hypothesis.inliers, ..lo };
         }
+    }
+
+    /// The agreement of candidate `i`, verified once: after local optimisation (optional).
+    fn verify(&mut self, i: usize, evaluator: &mut Evaluator) -> Agreement {
+        if let Some(agreement) = self.items[i].agreement {
+            return agreement;
+        }
+        self.optimize(i, evaluator);
+        let c = &mut self.items[i];
         let agreement = self.verification.verifier.verify(&c.hypothesis.pose.to_camera_to_map());
         c.agreement = Some(agreement);
         agreement
     }
 
-    /// Verifies every candidate; the best in-view agreement.
+    /// Verifies every candidate (those not verified yet: optimised in turn, then rendered in
+    /// parallel); the best in-view agreement.
     pub(crate) fn verify_all(&mut self, evaluator: &mut Evaluator) -> f64 {
+        use rayon::prelude::*;
+        let pending: Vec<usize> = (0..self.items.len()).filter(|&i| self.items[i].agreement.is_none()).collect();
+        for &i in &pending {
+            self.optimize(i, evaluator);
+        }
+        let verifier = self.verification.verifier;
+        let poses: Vec<_> = pending.iter().map(|&i| self.items[i].hypothesis.pose.to_camera_to_map()).collect();
+        let agreements: Vec<Agreement> = poses.par_iter().map(|pose| verifier.verify(pose)).collect();
+        for (&i, agreement) in pending.iter().zip(agreements) {
+            self.items[i].agreement = Some(agreement);
+        }
         let min_view = self.verification.min_view;
-        (0..self.items.len()).map(|i| self.verify(i, evaluator).in_view_share(min_view)).fold(0.0, f64::max)
+        self.items.iter().filter_map(|c| c.agreement).map(|a| a.in_view_share(min_view)).fold(0.0, f64::max)
     }
 
     /// Verifies the lowest-cost candidate alone; its in-view agreement.
@@ -116,16 +134,30 @@ impl<'a> Pool<'a> {
     /// The verified candidate with the most agreement + `coverage_weight`·cells / most cells;
     /// when no candidate reaches `min_trust`, the lowest-cost one (geometry alone).
     pub(crate) fn choose(&self) -> Option<MapToCamera> {
+        self.chosen().map(|i| self.items[i].hypothesis.pose)
+    }
+
+    /// The inlier set (bit set) of the candidate [`Pool::choose`] returns.
+    pub(crate) fn chosen_members(&self) -> Option<&[u64]> {
+        self.chosen().map(|i| self.items[i].members.as_slice())
+    }
+
+    /// The index of the candidate [`Pool::choose`] returns.
+    fn chosen(&self) -> Option<usize> {
         if self.trust() < self.verification.min_trust {
-            return self.extreme(false).map(|i| self.items[i].hypothesis.pose);
+            return self.extreme(false);
         }
         let most_cells = self.items.iter().map(|c| c.hypothesis.support).max()?.max(1) as f64;
         let weight = self.verification.coverage_weight;
         self.items
             .iter()
-            .filter_map(|c| Some((c.agreement?.share() + weight * c.hypothesis.support as f64 / most_cells, c)))
-            .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.hypothesis.cost.total_cmp(&a.1.hypothesis.cost)))
-            .map(|(_, c)| c.hypothesis.pose)
+            .enumerate()
+            .filter_map(|(i, c)| Some((c.agreement?.share() + weight * c.hypothesis.support as f64 / most_cells, i)))
+            .max_by(|a, b| {
+                let cost = |i: usize| self.items[i].hypothesis.cost;
+                a.0.total_cmp(&b.0).then(cost(b.1).total_cmp(&cost(a.1)))
+            })
+            .map(|(_, i)| i)
     }
 }
 
@@ -133,4 +165,11 @@ impl<'a> Pool<'a> {
 fn same_cluster(a: &Candidate, b: &Candidate) -> bool {
     let shared: u32 = a.members.iter().zip(&b.members).map(|(x, y)| (x & y).count_ones()).sum();
     2 * shared as usize > a.hypothesis.inliers.min(b.hypothesis.inliers)
+}
+
+/// Whether two inlier sets (bit sets) share more than half of the smaller one: one answer.
+pub(crate) fn same_inliers(a: &[u64], b: &[u64]) -> bool {
+    let count = |s: &[u64]| s.iter().map(|x| x.count_ones()).sum::<u32>();
+    let shared: u32 = a.iter().zip(b).map(|(x, y)| (x & y).count_ones()).sum();
+    2 * shared > count(a).min(count(b))
 }

@@ -95,7 +95,7 @@ impl Termination {
         let check_every = p.verification.check_every.max(1);
         if !schedule.accepted && iterations >= self.loop_min && iterations % check_every == 0 {
             schedule.accepted = p.verify_all(evaluator) >= accept
-                || schedule.settled.unchanged(p.choose(), p.verification.settle_checks);
+                || schedule.settled.unchanged(p.chosen_members(), p.verification.settle_checks);
         }
         schedule.accepted && (plain_done || iterations >= self.max_iterations)
     }
@@ -118,22 +118,28 @@ impl Termination {
     }
 }
 
-/// Counts the verifications in a row that chose the same pose: a frame whose choice stays put
-/// while more hypotheses are drawn is settled, whatever its prior agreement.
+/// Counts the verifications in a row that chose the same answer (a candidate sharing most of its
+/// inliers with the one chosen before, so a better hypothesis of the same cluster, which only
+/// sharpens the pose, does not count as a change): a frame whose choice stays put while more
+/// hypotheses are drawn is settled, whatever its prior agreement.
 #[derive(Default)]
 struct Settling {
-    last: Option<super::MapToCamera>,
+    last: Option<Vec<u64>>,
     same: usize,
 }
 
 impl Settling {
     /// Records this check's choice; whether it was the same in the last `checks` checks (0: never).
-    fn unchanged(&mut self, choice: Option<super::MapToCamera>, checks: usize) -> bool {
-        if choice.is_some() && choice == self.last {
+    fn unchanged(&mut self, choice: Option<&[u64]>, checks: usize) -> bool {
+        let same = match (choice, self.last.as_deref()) {
+            (Some(c), Some(l)) => super::pool::same_inliers(c, l),
+            _ => false,
+        };
+        if same {
             self.same += 1;
         } else {
             self.same = 1;
-            self.last = choice;
+            self.last = choice.map(<[u64]>::to_vec);
         }
         checks > 0 && self.same >= checks
     }
@@ -179,4 +185,33 @@ fn prosac_needed(
         needed = needed.min(samples_needed(count as f64 / len as f64, confidence, sprt_keep));
     }
     needed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Settling;
+
+    fn members(inliers: &[usize]) -> Vec<u64> {
+        let mut bits = vec![0u64; 2];
+        for &i in inliers {
+            bits[i / 64] |= 1 << (i % 64);
+        }
+        bits
+    }
+
+    /// A better hypothesis of the same cluster (most inliers shared) is the same answer; another
+    /// cluster starts the count again.
+    #[test]
+    fn settling_counts_the_same_cluster_as_unchanged() {
+        let mut settling = Settling::default();
+        let first = members(&(0..40).collect::<Vec<_>>());
+        let sharper = members(&(2..44).collect::<Vec<_>>());
+        let other = members(&(60..100).collect::<Vec<_>>());
+        assert!(!settling.unchanged(Some(&first), 2));
+        assert!(settling.unchanged(Some(&sharper), 2));
+        assert!(!settling.unchanged(Some(&other), 3));
+        assert!(!settling.unchanged(Some(&other), 3));
+        assert!(settling.unchanged(Some(&other), 3));
+        assert!(!settling.unchanged(Some(&other), 0), "0 checks: never");
+    }
 }

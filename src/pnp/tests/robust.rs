@@ -354,12 +354,12 @@ fn prior_depths_reject_a_pose_the_prior_contradicts() {
 /// A verifier that agrees with poses near `truth` (as the dense prior does with the true pose).
 struct NearPose {
     truth: Isometry3<f64>,
-    calls: std::cell::Cell<usize>,
+    calls: std::sync::atomic::AtomicUsize,
 }
 
 impl PoseVerifier for NearPose {
     fn verify(&self, pose: &Isometry3<f64>) -> Agreement {
-        self.calls.set(self.calls.get() + 1);
+        self.calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let (rot, trans) = pose_error(pose, &self.truth);
         let share = (1.0 - 5.0 * rot - trans).max(0.0);
         Agreement { agreeing: (share * 1000.0).round() as usize, in_view: 1000, cells: 1000 }
@@ -405,7 +405,7 @@ fn a_verifier_chooses_among_the_candidates() {
     assert!(rot < 0.01 && trans < 0.05, "{rot} rad, {trans} m off");
     assert!(verified.inliers[..8].iter().all(|&f| f) && verified.inliers[8..32].iter().all(|&f| !f));
     assert!(verified.iterations >= 500, "the verifier's minimum is drawn: {}", verified.iterations);
-    let calls = verifier.calls.get();
+    let calls = verifier.calls.load(std::sync::atomic::Ordering::Relaxed);
     assert!(calls > 1 && calls <= 8 * (5000 / 500 + 1), "{calls} verifications");
 
     // A verifier that agrees with no candidate (an unreliable prior) is not trusted: the pose is
@@ -421,7 +421,7 @@ fn a_verifier_chooses_among_the_candidates() {
     let idle = NearPose { truth: pose, calls: Default::default() };
     let guidance = Guidance { verification: Some(Verification { verifier: &idle, ..verification }), ..guidance };
     ransac_guided(&intr, &px, &pw, &guidance, &unscored, 2).expect("a pose");
-    assert_eq!(idle.calls.get(), 0);
+    assert_eq!(idle.calls.load(std::sync::atomic::Ordering::Relaxed), 0);
 }
 
 /// An easy frame: the best hypothesis verifies at once, so sampling stops where plain RANSAC
@@ -446,7 +446,7 @@ fn an_easy_frame_is_verified_once() {
     };
     let guidance = Guidance { verification: Some(verification), ..Guidance::default() };
     let verified = ransac_guided(&k(), &px, &pw, &guidance, &params, 4).expect("a pose");
-    assert_eq!(verifier.calls.get(), 1);
+    assert_eq!(verifier.calls.load(std::sync::atomic::Ordering::Relaxed), 1);
     assert_eq!(verified.iterations, plain.iterations);
     assert!(pose_error(&verified.pose, &pose).0 < 0.01);
 }
