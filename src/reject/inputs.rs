@@ -95,14 +95,19 @@ pub fn build_inputs_into(
     params: &NetworkParams,
     scratch: &mut InputScratch,
 ) {
-    if spectral.scores_into(geometry, &mut inputs.spectral_scores).is_err() {
+    // The keypoints' spectral scores and the map normals need only the geometry: side by side.
+    let spectral_scores = &mut inputs.spectral_scores;
+    let (spectral_ok, n_map) = rayon::join(
+        || spectral.scores_into(geometry, spectral_scores).is_ok(),
+        || match map {
+            Some(m) => map_normals(m, geometry),
+            None => vec![nalgebra::Vector3::zeros(); geometry.len()],
+        },
+    );
+    if !spectral_ok {
         inputs.spectral_scores.clear();
         inputs.spectral_scores.resize(geometry.len(), 0.0);
     }
-    let n_map = match map {
-        Some(m) => map_normals(m, geometry),
-        None => vec![nalgebra::Vector3::zeros(); geometry.len()],
-    };
     scratch.image.clear();
     scratch.image.extend((0..geometry.len()).map(|i| match geometry.image_points.get(i) {
         Some(p) if p.coords.iter().all(|v| v.is_finite()) => *p,
