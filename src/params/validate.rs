@@ -124,6 +124,7 @@ impl LocalizerParams {
         real("verify.accept", v.accept, Range::Unit)?;
         real("verify.min_view", v.min_view, Range::Share)?;
         real("verify.min_trust", v.min_trust, Range::Unit)?;
+        real("verify.settle_support", v.settle_support, Range::Unit)?;
         at_least("verify.check_every", v.check_every as u64, 1, "at least 1")?;
         at_least("verify.max_iterations", v.max_iterations as u64, 1, "at least 1")?;
         at_least("verify.max_map_points", v.max_map_points as u64, 1, "at least 1")?;

@@ -225,6 +225,10 @@ pub struct Verification<'a> {
     /// Below this in-view agreement of every candidate the evidence is not trusted for the
     /// frame: the pose is chosen on geometry alone (coverage cost), as without a verifier.
     pub min_trust: f64,
+    /// When plain RANSAC stops and the best hypothesis is not trusted by the verifier but
+    /// explains at least this share of the correspondences, it is taken on geometry alone
+    /// (0: off).
+    pub settle_support: f64,
 }
 
 /// What guides [`solve_pnp_ransac`] beyond the correspondences; each part optional.

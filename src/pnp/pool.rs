@@ -124,6 +124,17 @@ impl<'a> Pool<'a> {
         self.extreme(false).map_or(0.0, |i| self.verify(i, evaluator).in_view_share(min_view))
     }
 
+    /// Whether the lowest-cost candidate, verified, is not trusted by the verifier (the prior
+    /// is unreliable for it) yet its geometry explains `settle_support` of the `n`
+    /// correspondences: then geometry alone decides, as without a verifier.
+    pub(crate) fn settled_by_geometry(&self, n: usize) -> bool {
+        let v = &self.verification;
+        let Some(best) = self.extreme(false).map(|i| &self.items[i]) else { return false };
+        let Some(agreement) = best.agreement else { return false };
+        let share = best.hypothesis.inliers as f64 / n.max(1) as f64;
+        v.settle_support > 0.0 && agreement.in_view_share(v.min_view) < v.min_trust && share >= v.settle_support
+    }
+
     /// The best in-view agreement of any verified candidate: how far the frame's evidence can be
     /// trusted.
     fn trust(&self) -> f64 {

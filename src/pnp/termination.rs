@@ -83,10 +83,15 @@ impl Termination {
         let Some(p) = pool else { return plain_done };
         let accept = p.verification.accept;
         let schedule = &mut self.schedule;
-        // There the best hypothesis alone is verified first: an easy frame stops there.
+        // There the best hypothesis alone is verified first: an easy frame stops there, and so
+        // does one whose prior does not confirm it but whose geometry is unambiguous.
         if plain_done && !schedule.early_checked {
             schedule.early_checked = true;
             if p.verify_best(evaluator) >= accept {
+                schedule.early_accepted = true;
+                return true;
+            }
+            if p.settled_by_geometry(evaluator.data.len()) {
                 schedule.early_accepted = true;
                 return true;
             }

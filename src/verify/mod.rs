@@ -34,6 +34,12 @@ pub struct VerifyParams {
     /// A frame whose best candidate agrees with the prior in less than this share of what it
     /// sees has an unreliable prior: the pose is chosen on geometry alone.
     pub min_trust: f64,
+    /// Where plain RANSAC would stop, a best hypothesis the prior does not confirm (its
+    /// agreement under `min_trust`) but whose geometry explains at least this share of the
+    /// correspondences PnP sees is taken on geometry alone, without the verifier's further
+    /// sampling: a realistic prior that never reaches `accept` does not cost every frame
+    /// `min_iterations`. 0: off.
+    pub settle_support: f64,
     /// Map points rendered, at most (an even subsample of the map, or of what is in view).
     pub max_map_points: usize,
     /// A map of more points than this many render budgets (`max_map_points`) is culled per
@@ -71,6 +77,7 @@ impl Default for VerifyParams {
             settle_checks: 2,
             max_iterations: 10_000,
             min_trust: 0.7,
+            settle_support: 0.3,
             max_map_points: 10_000,
             cull_above_budgets: 25,
             cull_range_m: 30.0,
@@ -97,6 +104,7 @@ impl VerifyParams {
             settle_checks: self.settle_checks,
             max_iterations: self.max_iterations,
             min_trust: self.min_trust,
+            settle_support: self.settle_support,
         }
     }
 }
