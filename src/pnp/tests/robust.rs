@@ -462,19 +462,8 @@ fn an_unreliable_prior_leaves_a_clear_frame_to_geometry() {
     let params = PnpParams::default();
     let plain = ransac(&k(), &px, &pw, None, &params, 4).expect("a pose");
     let far = NearPose { truth: random_pose(&mut WyRand::new(77)), calls: Default::default() };
-    let verification = Verification {
-        verifier: &far,
-        candidates: 8,
-        coverage_weight: 0.25,
-        min_iterations: 1000,
-        check_every: 500,
-        accept: 0.7,
-        min_view: 0.25,
-        settle_checks: 2,
-        max_iterations: 10_000,
-        min_trust: 0.7,
-        settle_support: 0.3,
-    };
+    // The shipped verification: 1000 hypotheses at least, trust and settling from 0.7 and 0.3.
+    let verification = crate::verify::VerifyParams::default().verification(&far);
     let guidance = Guidance { verification: Some(verification), ..Guidance::default() };
     let settled = ransac_guided(&k(), &px, &pw, &guidance, &params, 4).expect("a pose");
     assert_eq!(settled.iterations, plain.iterations);
