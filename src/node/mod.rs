@@ -17,6 +17,7 @@
 //! `/diagnostics` and logged; the node keeps going. Topics are the [`crate::bag::TopicMap`]'s,
 //! resolved with `--ros-args` remaps.
 
+mod cameras;
 pub mod clock;
 pub mod dds;
 pub mod diagnostics;
@@ -27,6 +28,7 @@ pub mod initial_pose;
 pub mod install;
 mod log;
 pub mod map_file;
+mod map_inbox;
 mod outputs;
 pub mod qos_watch;
 pub mod queue;
