@@ -42,7 +42,7 @@ impl MapInbox {
             warn(format!("map: {note}"));
         }
         let map = Arc::new(map);
-        self.swap.new_map(Arc::clone(&map), self.settings.clone(), |index, took| {
+        self.swap.new_map(Arc::clone(&map), self.settings, |index, took| {
             info(format!("map indexed: {} points in {:.0} ms", index.len(), took.as_secs_f64() * 1e3));
         });
         for camera in cameras {

@@ -36,6 +36,7 @@ mod readers;
 pub mod ros_params;
 mod run;
 pub mod services;
+mod setup;
 pub mod tf;
 pub mod tf_buffer;
 mod topics;

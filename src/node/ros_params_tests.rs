@@ -42,7 +42,8 @@ fn every_parameter_is_declared_under_its_dotted_name_with_its_value() {
         ..AppParams::default()
     };
     let cams = ParameterValue::StringArray(vec!["cam0".into(), "cam1".into()]);
-    assert_eq!(value_of(&declared(&two).unwrap(), "node.cameras"), &cams);
+    let two_declared = super::declared(&two).unwrap();
+    assert_eq!(value_of(&two_declared, "node.cameras"), &cams);
     assert_eq!(with_value(&AppParams::default(), "node.cameras", &cams).unwrap().node.cameras, two.node.cameras);
     // Each declared value reads back as the same parameters (a `ros2 param dump` is a params file).
     let mut again = AppParams::default();
