@@ -8,6 +8,8 @@
 //! given. `/diagnostics`, `/tf` and `/tf_static` stay absolute, as `diagnostic_updater` and
 //! tf2 have them (remap them, e.g. `-r /tf:=tf`, to keep them per robot).
 
+use std::convert::Infallible;
+
 use crate::bag::TopicMap;
 use crate::params::{AppParams, Names};
 
@@ -54,47 +56,42 @@ pub struct SharedCameraTopic {
     pub topic: String,
 }
 
-/// Names of one camera's topics before resolution: relative ones are put under `camera`.
-struct CameraNames<'a> {
-    names: &'a Names,
-    camera: &'a str,
-}
-
-impl CameraNames<'_> {
-    fn resolve(&self, key: &'static str, name: &str) -> Result<String, SharedCameraTopic> {
-        if self.camera.is_empty() {
-            return Ok(self.names.resolve(name));
-        }
-        if name.starts_with('/') || name.starts_with('~') {
-            let camera = self.camera.to_string();
-            return Err(SharedCameraTopic { camera, key, topic: name.to_string() });
-        }
-        Ok(self.names.resolve(&format!("{}/{name}", self.camera)))
-    }
-}
-
 impl Topics {
     /// The topics of a node with one camera.
     pub fn new(params: &AppParams, names: &Names) -> Self {
-        match Self::for_camera(params, names, "") {
-            Ok(topics) => topics,
-            // A camera without a namespace accepts every name.
-            Err(e) => unreachable!("{e}"),
-        }
+        let Ok(topics) = Self::resolved_with(params, names, |_, name| Ok::<_, Infallible>(names.resolve(name)));
+        topics
     }
 
     /// The topics of camera `camera` (a namespace relative to the node's, from `node.cameras`;
     /// empty: the node's one camera). Its inputs, outputs and `initialpose` move under the
-    /// camera's namespace; the map, `/diagnostics` and TF stay the node's.
+    /// camera's namespace; the map, `/diagnostics` and TF stay the node's. A camera's topic given
+    /// as an absolute name would be every camera's: refused.
     pub fn for_camera(params: &AppParams, names: &Names, camera: &str) -> Result<Self, SharedCameraTopic> {
+        if camera.is_empty() {
+            return Ok(Self::new(params, names));
+        }
+        Self::resolved_with(params, names, |key, name| {
+            if name.starts_with('/') || name.starts_with('~') {
+                return Err(SharedCameraTopic { camera: camera.to_string(), key, topic: name.to_string() });
+            }
+            Ok(names.resolve(&format!("{camera}/{name}")))
+        })
+    }
+
+    /// The topics, the camera's resolved with `camera_topic` (its parameter's key, its name).
+    fn resolved_with<E>(
+        params: &AppParams,
+        names: &Names,
+        camera_topic: impl Fn(&'static str, &str) -> Result<String, E>,
+    ) -> Result<Self, E> {
         let (t, n, d) = (&params.topics, &params.node, TopicMap::default());
-        let cam = CameraNames { names, camera };
         let topic =
-            |key: &'static str, value: &str, default: &str| cam.resolve(key, &relative_if_default(value, default));
+            |key: &'static str, value: &str, default: &str| camera_topic(key, &relative_if_default(value, default));
         Ok(Self {
             camera_info: topic("topics.camera_info", &t.camera_info, &d.camera_info)?,
             image: topic("topics.image", &t.image, &d.image)?,
-            image_raw: cam.resolve("node.image_raw_topic", &n.image_raw_topic)?,
+            image_raw: camera_topic("node.image_raw_topic", &n.image_raw_topic)?,
             depth_prior: topic("topics.depth_prior", &t.depth_prior, &d.depth_prior)?,
             correspondences: topic("topics.correspondences", &t.correspondences, &d.correspondences)?,
             map: names.resolve(&relative_if_default(&t.map, &d.map)),
@@ -112,9 +109,9 @@ impl Topics {
             diagnostics: names.resolve(&n.diagnostics_topic),
             tf: names.resolve(&n.tf_topic),
             tf_static: names.resolve(&n.tf_static_topic),
-            debug_image: cam.resolve("node.debug_image_topic", &n.debug_image_topic)?,
-            base_pose: cam.resolve("node.base_pose_topic", &n.base_pose_topic)?,
-            initial_pose: cam.resolve("node.initialpose_topic", &n.initialpose_topic)?,
+            debug_image: camera_topic("node.debug_image_topic", &n.debug_image_topic)?,
+            base_pose: camera_topic("node.base_pose_topic", &n.base_pose_topic)?,
+            initial_pose: camera_topic("node.initialpose_topic", &n.initialpose_topic)?,
         })
     }
 }
