@@ -108,11 +108,6 @@ impl MapSwap {
     pub fn indexed(&self) -> u64 {
         self.lock().indexed
     }
-
-    /// The newest index built.
-    pub fn current(&self) -> Option<Arc<MapIndex>> {
-        self.lock().newest.as_ref().map(|n| Arc::clone(&n.index))
-    }
 }
 
 impl MapTaker {

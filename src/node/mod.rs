@@ -9,7 +9,9 @@
 //! ```
 //!
 //! `run` does the node's life in named steps (parameters, publishers, subscriptions, loop,
-//! shutdown); `readers`, `ingest`, `worker` and `outputs` are the rooms it wires. Nothing heavy
+//! shutdown); `readers`, `ingest`, `worker` and `outputs` are the rooms it wires, once per
+//! camera (`cameras`: one, or one per `node.cameras` namespace), all on the node's one map
+//! (`map_inbox`) and its one index (`map_index::swap::MapSwap`). Nothing heavy
 //! runs in the DDS receive path: readers only decode and convert (with the conversions bag
 //! replay uses), the localizer runs on tokio's blocking pool, one frame at a time. Bad input
 //! (undecodable messages, non-finite correspondences, unsupported depth encodings, frames with

@@ -3,7 +3,7 @@
 //! subscription, and `std_srvs/Trigger` calls.
 
 use std::path::Path;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use angle_i2p::bag::{read_frames, TopicMap};
 use angle_i2p::frame::{Frame, MapCloud};
@@ -74,8 +74,10 @@ impl Camera {
     }
 }
 
-/// Calls the std_srvs/Trigger `service` and returns its answer (20 s at most each for the
-/// service to appear and to answer).
+/// Calls the std_srvs/Trigger `service` and returns its answer, once the service has appeared
+/// (20 s at most). A request sent before the server's reply writer has matched this client gets
+/// no answer, so an unanswered call is repeated (3 s each, 30 s at most): call only services
+/// whose answer a repeat does not change.
 pub fn trigger(
     ros: &mut ros2_client::Node,
     service: &str,
@@ -93,12 +95,15 @@ pub fn trigger(
             qos,
         )
         .expect("client");
-    let answer = futures::executor::block_on(async {
-        super::with_timeout(client.wait_for_service(ros), Duration::from_secs(20)).await.expect("the service appears");
-        super::with_timeout(client.async_call_service(TriggerRequest::default()), Duration::from_secs(20)).await
-    });
-    match answer {
-        Some(Ok(r)) => r,
-        other => panic!("{what}: no answer from {service}: {other:?}\n{}", super::read_log(log)),
+    let appeared =
+        futures::executor::block_on(super::with_timeout(client.wait_for_service(ros), Duration::from_secs(20)));
+    assert!(appeared.is_some(), "{what}: {service} never appeared\n{}", super::read_log(log));
+    let end = Instant::now() + Duration::from_secs(30);
+    while Instant::now() < end {
+        let call = client.async_call_service(TriggerRequest::default());
+        if let Some(Ok(answer)) = futures::executor::block_on(super::with_timeout(call, Duration::from_secs(3))) {
+            return answer;
+        }
     }
+    panic!("{what}: no answer from {service} in 30 s\n{}", super::read_log(log))
 }
