@@ -153,7 +153,8 @@ fn inner_ros_parameters_rosout_and_clock() {
     }
     assert!(!names.iter().any(|n| n == "node.use_sim_time"), "{names:?}");
     assert!(names.len() > 100, "{} parameters", names.len());
-    let values = params.get(&["pnp.min_inliers", "node.min_rate_hz", "use_sim_time", "node.odom_frame", "nope"], &log5);
+    let asked = ["pnp.min_inliers", "node.min_rate_hz", "use_sim_time", "node.odom_frame", "node.cameras", "nope"];
+    let values = params.get(&asked, &log5);
     assert_eq!(
         values,
         [
@@ -161,6 +162,8 @@ fn inner_ros_parameters_rosout_and_clock() {
             ParameterValue::Double(1.0),
             ParameterValue::Boolean(true),
             ParameterValue::String("odom".into()),
+            // One camera: an empty list, typed (a string array) for `ros2 param get/set`.
+            ParameterValue::StringArray(vec![]),
             ParameterValue::NotSet
         ]
     );

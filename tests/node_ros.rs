@@ -8,13 +8,11 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use angle_i2p::bag::{read_frames, TopicMap};
 use angle_i2p::frame::Frame;
 use angle_i2p::msgs::{self, convert};
 use angle_i2p::node::dds;
-use angle_i2p::params::LocalizerParams;
-use angle_i2p::pipeline::{Localizer, Method};
 use common::manifest;
+use netns::camera::{trigger, Camera};
 use netns::{enter_netns, mark_done, run_in_netns, Guard};
 
 const DOMAIN: &str = "19";
@@ -40,51 +38,9 @@ fn diag_of(d: &msgs::DiagnosticArray, fq_name: &str, key: &str) -> u64 {
 
 /// The first frame of the shipped bag that plain RANSAC localizes, with the bag's map.
 fn ransac_frame() -> (Frame, angle_i2p::frame::MapCloud, nalgebra::Isometry3<f64>) {
-    let input = read_frames(manifest().join("bags/synth-hard"), &TopicMap::default()).expect("read bag");
-    let map = input.map.clone().expect("map");
-    let mut localizer =
-        Localizer::new(LocalizerParams { method: Method::Ransac, ..LocalizerParams::default() }).expect("a localizer");
-    localizer.set_map(&map);
-    let (frame, pose) = input
-        .frames
-        .iter()
-        .find_map(|f| localizer.process(f).pose.map(|p| (f.clone(), p)))
-        .expect("a frame RANSAC localizes");
-    (frame, map, pose)
-}
-
-/// One camera's publishers as a best-effort matcher and a volatile map server would have them.
-struct Camera {
-    info: ros2_client::Publisher<msgs::CameraInfo>,
-    corr: ros2_client::Publisher<msgs::Correspondences>,
-    map: ros2_client::Publisher<msgs::PointCloud2>,
-    pose: ros2_client::Subscription<msgs::PoseStamped>,
-}
-
-impl Camera {
-    fn new(ros: &mut ros2_client::Node, ns: &str) -> Self {
-        let best_effort = dds::sensor_data(10);
-        Self {
-            info: dds::publisher(ros, &format!("{ns}/camera/camera_info"), &best_effort).expect("pub"),
-            corr: dds::publisher(ros, &format!("{ns}/matcher/correspondences"), &best_effort).expect("pub"),
-            map: dds::publisher(ros, &format!("{ns}/map/points"), &dds::reliable(1)).expect("pub"),
-            pose: dds::subscription(ros, &format!("{ns}/angle_i2p/pose"), &dds::reliable(10)).expect("sub"),
-        }
-    }
-
-    fn matched(&self, ros: &ros2_client::Node) -> bool {
-        self.info.get_subscription_count(ros) > 0
-            && self.corr.get_subscription_count(ros) > 0
-            && self.map.get_subscription_count(ros) > 0
-            && self.pose.get_publisher_count(ros) > 0
-    }
-
-    fn publish_frame(&self, frame: &Frame, stamp: i64) {
-        let cam = frame.camera_frame_id.as_str();
-        self.info.publish(convert::camera_info(stamp, cam, &frame.intrinsics)).expect("info");
-        let corr = convert::correspondences_msg(stamp, cam, &frame.map_frame_id, &frame.correspondences);
-        self.corr.publish(corr).expect("corr");
-    }
+    let (mut frames, map) = netns::camera::ransac_frames(1);
+    let first = frames.remove(0);
+    (first.frame, map, first.pose)
 }
 
 #[test]
@@ -141,7 +97,11 @@ fn inner_namespaces_qos_and_ros_params() {
     let context = dds::context().expect("context");
     let mut ros = dds::node(&context, "/", "issue12_test").expect("node");
     let _spinner = dds::spawn_spinner(&mut ros).expect("spinner");
-    let cams = [Camera::new(&mut ros, "/cam0"), Camera::new(&mut ros, "/cam1"), Camera::new(&mut ros, "/cam3")];
+    let cams = [
+        Camera::new(&mut ros, "/cam0", "/cam0/map/points"),
+        Camera::new(&mut ros, "/cam1", "/cam1/map/points"),
+        Camera::new(&mut ros, "/cam3", "/cam3/map/points"),
+    ];
     let cam2_map = dds::publisher::<msgs::PointCloud2>(&mut ros, "/cam2/map/points", &dds::reliable(1)).expect("pub");
     let root_pose =
         dds::subscription::<msgs::PoseStamped>(&mut ros, "/angle_i2p/pose", &dds::reliable(10)).expect("sub");
@@ -336,7 +296,7 @@ fn inner_python_matcher_example() {
     let context = dds::context().expect("context");
     let mut ros = dds::node(&context, "/", "example_test").expect("node");
     let _spinner = dds::spawn_spinner(&mut ros).expect("spinner");
-    let cam = Camera::new(&mut ros, "/cam5");
+    let cam = Camera::new(&mut ros, "/cam5", "/cam5/map/points");
     netns::wait_for("the node's readers match", &[&log], || {
         cam.info.get_subscription_count(&ros) > 0 && cam.map.get_subscription_count(&ros) > 0
     });
@@ -364,33 +324,4 @@ fn inner_python_matcher_example() {
     let status = netns::wait_bounded(&mut matcher.0, Duration::from_secs(30)).expect("the matcher exits");
     assert!(status.success(), "the example matcher failed: {status}");
     mark_done();
-}
-
-/// Calls the std_srvs/Trigger `service` and returns its answer (20 s at most each for the
-/// service to appear and to answer).
-fn trigger(
-    ros: &mut ros2_client::Node,
-    service: &str,
-    what: &str,
-    log: &Path,
-) -> angle_i2p::node::services::TriggerResponse {
-    use angle_i2p::node::services::{trigger_type, TriggerRequest, TriggerResponse, SERVICE_MAPPING};
-    let qos = dds::reliable(10);
-    let client = ros
-        .create_client::<TriggerRequest, TriggerResponse>(
-            SERVICE_MAPPING,
-            &dds::topic_name(service).expect("name"),
-            &trigger_type(),
-            qos.clone(),
-            qos,
-        )
-        .expect("client");
-    let answer = futures::executor::block_on(async {
-        netns::with_timeout(client.wait_for_service(ros), Duration::from_secs(20)).await.expect("the service appears");
-        netns::with_timeout(client.async_call_service(TriggerRequest::default()), Duration::from_secs(20)).await
-    });
-    match answer {
-        Some(Ok(r)) => r,
-        other => panic!("{what}: no answer from {service}: {other:?}\n{}", read(log)),
-    }
 }

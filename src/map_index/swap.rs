@@ -1,42 +1,126 @@
-//! A new map indexed on its own thread while the worker goes on localizing against the old
-//! one; the worker takes the new index between two frames (an `Arc` swap, no stall).
+//! A new map indexed on its own thread while the workers go on localizing against the old one.
+//! One [`MapSwap`] serves every worker of the node (one per camera): a map is indexed once, and
+//! each worker takes the new index between two of its frames through its own [`MapTaker`] (an
+//! `Arc` swap, no stall). The old index is dropped when the last worker lets go of it: during a
+//! swap the node holds two indexes, whatever the number of workers.
 
 use std::sync::mpsc::{self, Receiver, TryRecvError};
-use std::sync::Arc;
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 
 use super::{IndexSettings, MapIndex, MapScale};
 use crate::frame::MapCloud;
 
-/// The worker's maps: the one frames are localized against, and a newer one being indexed.
-/// The first map is waited for (there is nothing to localize against before it); a later one is
-/// indexed on its own thread and swapped in between two frames when ready.
+/// The node's map index, shared by its workers: the newest index built, and the maps being
+/// indexed. The first map is waited for (there is nothing to localize against before it); a
+/// later one is swapped in by each worker when it is ready.
 #[derive(Default)]
 pub struct MapSwap {
-    current: Option<IndexedCloud>,
-    fresh: Option<IndexedCloud>,
-    building: BackgroundIndex,
+    state: Mutex<SwapState>,
+    built: Condvar,
+}
+
+#[derive(Default)]
+struct SwapState {
+    /// The newest index built, the one every worker moves to.
+    newest: Option<Numbered>,
+    /// The number of the newest map started (1, 2, …).
+    started: u64,
+    /// Maps being indexed now.
+    building: usize,
+    /// Indexes built (a map superseded while it was indexed is built and not counted).
+    indexed: u64,
+}
+
+/// An index and the number of its map.
+#[derive(Clone)]
+struct Numbered {
+    number: u64,
+    index: Arc<MapIndex>,
+}
+
+/// One worker's view of the node's [`MapSwap`]: which index it took last.
+pub struct MapTaker {
+    swap: Arc<MapSwap>,
+    /// The number of the map this worker took last (0: none yet).
+    taken: u64,
 }
 
 impl MapSwap {
-    /// A new map arrived.
-    pub fn new_map(&mut self, map: Arc<MapCloud>, settings: IndexSettings) {
-        self.building.start(map, settings);
-        if self.current.is_none() {
-            self.fresh = self.building.wait();
+    fn lock(&self) -> MutexGuard<'_, SwapState> {
+        // A panic while holding the lock leaves consistent state (every write is one assignment).
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// A new map arrived: it is indexed on its own thread (the newest map wins: an older one
+    /// finishing later is not handed out); `on_built` hears of the index and how long it took.
+    pub fn new_map<F>(self: &Arc<Self>, map: Arc<MapCloud>, settings: IndexSettings, on_built: F)
+    where
+        F: FnOnce(&MapIndex, Duration) + Send + 'static,
+    {
+        let number = {
+            let mut s = self.lock();
+            s.started += 1;
+            s.building += 1;
+            s.started
+        };
+        let swap = Arc::clone(self);
+        std::thread::spawn(move || {
+            let started = Instant::now();
+            let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                MapIndex::build(map.points.clone(), &settings)
+            }));
+            let index = built.ok().map(Arc::new);
+            if let Some(index) = &index {
+                on_built(index, started.elapsed());
+            }
+            // Kept here only for a building, whose trees this thread goes on building.
+            let keep = index.as_ref().filter(|i| i.scale() == MapScale::Building).map(Arc::clone);
+            swap.finished(number, index);
+            if let Some(index) = keep {
+                // The frames go on meanwhile; the per-voxel trees their searches would build are
+                // built here instead, until no one else holds the index any more.
+                index.grid().build_trees_while(|| Arc::strong_count(&index) > 1);
+            }
+        });
+    }
+
+    /// The build of map `number` ended (`None`: it panicked).
+    fn finished(&self, number: u64, index: Option<Arc<MapIndex>>) {
+        let mut s = self.lock();
+        s.building = s.building.saturating_sub(1);
+        if let Some(index) = index {
+            s.indexed += 1;
+            if s.newest.as_ref().is_none_or(|n| n.number < number) {
+                s.newest = Some(Numbered { number, index });
+            }
         }
+        drop(s);
+        self.built.notify_all();
     }
 
-    /// The index to localize against from now on, when it changed (never blocks).
+    /// A worker's hand-over point (it has taken nothing yet).
+    pub fn taker(self: &Arc<Self>) -> MapTaker {
+        MapTaker { swap: Arc::clone(self), taken: 0 }
+    }
+
+    /// Indexes built so far.
+    pub fn indexed(&self) -> u64 {
+        self.lock().indexed
+    }
+}
+
+impl MapTaker {
+    /// The index this worker localizes against from now on, when it changed since it last took
+    /// one. Blocks only while the worker has none and a map is being indexed (its first map).
     pub fn take_ready(&mut self) -> Option<Arc<MapIndex>> {
-        let done = self.fresh.take().or_else(|| self.building.ready())?;
-        let index = Arc::clone(&done.index);
-        self.current = Some(done);
-        Some(index)
-    }
-
-    /// The index frames are localized against.
-    pub fn current(&self) -> Option<Arc<MapIndex>> {
-        self.current.as_ref().map(|c| Arc::clone(&c.index))
+        let mut s = self.swap.lock();
+        while self.taken == 0 && s.newest.is_none() && s.building > 0 {
+            s = self.swap.built.wait(s).unwrap_or_else(|p| p.into_inner());
+        }
+        let newest = s.newest.as_ref().filter(|n| n.number > self.taken)?;
+        self.taken = newest.number;
+        Some(Arc::clone(&newest.index))
     }
 }
 
@@ -62,8 +146,6 @@ impl BackgroundIndex {
             // The receiver is gone when a newer map replaced this one: nothing to do.
             let _ = send.send(IndexedCloud { map, index: Arc::clone(&index) });
             if index.scale() == MapScale::Building {
-                // The frames go on meanwhile; the per-voxel trees their searches would build
-                // are built here instead, until no one holds the index any more.
                 index.grid().build_trees_while(|| Arc::strong_count(&index) > 1);
             }
         });
@@ -95,5 +177,57 @@ impl BackgroundIndex {
     pub fn wait(&mut self) -> Option<IndexedCloud> {
         let receive = self.pending.take()?;
         receive.recv().ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Weak;
+
+    use nalgebra::Point3;
+
+    use super::*;
+
+    fn map(n: usize) -> Arc<MapCloud> {
+        let points = (0..n).map(|i| Point3::new((i % 17) as f32 * 0.1, (i / 17) as f32 * 0.1, 1.0)).collect();
+        Arc::new(MapCloud { frame_id: "map".into(), points })
+    }
+
+    /// Waits (bounded) until the swap has built `n` indexes.
+    fn wait_indexed(swap: &MapSwap, n: u64) {
+        let end = Instant::now() + std::time::Duration::from_secs(30);
+        while swap.indexed() < n {
+            assert!(Instant::now() < end, "the map was not indexed");
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+    }
+
+    #[test]
+    fn every_worker_takes_each_new_index_once_and_the_old_one_goes_with_the_last() {
+        let swap = Arc::new(MapSwap::default());
+        let (mut first, mut second) = (swap.taker(), swap.taker());
+        assert!(first.take_ready().is_none(), "nothing to take, nothing being indexed: no wait");
+        swap.new_map(map(500), IndexSettings::default(), |_, _| {});
+        // A worker's first map is waited for.
+        let held_first = first.take_ready().expect("the first map");
+        let held_second = second.take_ready().expect("the first map, for the other worker too");
+        assert!(Arc::ptr_eq(&held_first, &held_second), "one index for both workers");
+        assert_eq!(held_first.len(), 500);
+        assert!(first.take_ready().is_none() && second.take_ready().is_none(), "taken once each");
+        let old: Weak<MapIndex> = Arc::downgrade(&held_first);
+
+        swap.new_map(map(700), IndexSettings::default(), |_, _| {});
+        wait_indexed(&swap, 2);
+        assert_eq!(swap.indexed(), 2);
+        let new_first = first.take_ready().expect("the new index");
+        assert_eq!(new_first.len(), 700);
+        drop(held_first);
+        assert!(old.upgrade().is_some(), "the second worker still localizes against the old index");
+        let new_second = second.take_ready().expect("the new index, for the other worker too");
+        assert!(Arc::ptr_eq(&new_first, &new_second));
+        drop(held_second);
+        assert!(old.upgrade().is_none(), "the old index is dropped when the last worker lets go");
+        // A worker that starts late (a fresh localizer) takes the newest.
+        assert!(Arc::ptr_eq(&swap.taker().take_ready().expect("the newest"), &new_first));
     }
 }

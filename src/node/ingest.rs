@@ -7,7 +7,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use super::diagnostics::Stats;
-use super::log::{info, lock, warn};
+use super::log::{lock, warn};
 use super::queue::DropOldestQueue;
 use crate::frame::Stamp;
 use crate::frame::{Assembled, Frame, FrameAssembler, FramePart, IncompleteFrame, MapCloud, MonotonicNs, PartKind};
@@ -37,16 +37,23 @@ pub enum Input {
     },
 }
 
-/// One frame waiting for the worker.
+/// An input and the camera it is for: the index into the node's cameras, `None` for the
+/// node's own inputs (the map, TF), which concern every camera.
+pub struct Routed {
+    pub camera: Option<usize>,
+    pub input: Input,
+}
+
+/// One frame waiting for the worker (which takes a new map from the node's shared
+/// [`crate::map_index::swap::MapSwap`] between two frames).
 pub struct Job {
     pub frame: Frame,
     /// When the assembler handed it out (complete, or timed out).
     pub handed_out: Instant,
-    /// A map that arrived since the previous job: the worker's localizer takes it first.
-    pub new_map: Option<Arc<MapCloud>>,
 }
 
 /// How frames are joined: the node's `frame_timeout_ms`, `stamp_tolerance_ns`, `require_map`.
+#[derive(Clone)]
 pub struct IngestRules {
     /// The parts a frame waits for (the required ones are always waited for).
     pub expected: Vec<PartKind>,
@@ -63,15 +70,14 @@ pub struct IngestRules {
     pub pixels: crate::camera::PixelSpace,
 }
 
-/// Joins parts into frames, times out incomplete ones, holds the map, feeds the queue.
+/// Joins parts into frames, times out incomplete ones, knows whether a map arrived, feeds the
+/// queue (one per camera).
 pub struct Ingest {
     assembler: FrameAssembler,
     /// `frames_opened` of the assembler already counted as received.
     opened_counted: u64,
     require_map: bool,
     map: Option<Arc<MapCloud>>,
-    /// The map changed since the last queued job.
-    map_changed: bool,
     queue: Arc<DropOldestQueue<Job>>,
     stats: Arc<Mutex<Stats>>,
     limits: InputLimits,
@@ -91,7 +97,6 @@ impl Ingest {
             opened_counted: 0,
             require_map: rules.require_map,
             map: None,
-            map_changed: false,
             queue,
             stats,
             limits: rules.limits,
@@ -117,10 +122,10 @@ impl Ingest {
                 let done = self.assembler.push_error(stamp, kind, format!("{reason} (counted)"), now);
                 self.handle(done);
             }
-            Input::Map(Ok(map)) => self.set_map(map),
+            Input::Map(Ok(DecodedMap { map, notes })) => self.set_map(Arc::new(map), &notes),
             Input::Map(Err(reason)) => {
                 warn(format!("bad map (kept the previous one): {reason}"));
-                lock(&self.stats).error("invalid_map", format!("map: {reason}"));
+                self.count_error("invalid_map", format!("map: {reason}"));
             }
             Input::ReadError { topic, reason } => {
                 warn(format!("{topic}: undecodable message: {reason}"));
@@ -133,22 +138,21 @@ impl Ingest {
         }
     }
 
-    fn set_map(&mut self, decoded: DecodedMap) {
-        let DecodedMap { map, notes } = decoded;
-        if self.map.as_deref().is_some_and(|m| m.frame_id == map.frame_id && m.points == map.points) {
-            // `map_qos: auto` reads the map twice from a latched publisher.
-            return;
-        }
-        info(format!("map received: {} points in frame {:?}", map.points.len(), map.frame_id));
+    /// The map frames are localized against from now on (shared by every camera: the node
+    /// indexes it once), with what the input limits changed in it (`notes`, counted).
+    pub fn set_map(&mut self, map: Arc<MapCloud>, notes: &[String]) {
         let mut s = lock(&self.stats);
         for note in notes {
-            warn(format!("map: {note}"));
             s.error("map_cleaned", format!("map: {note}"));
         }
         s.maps_received += 1;
         s.map_points = map.points.len();
-        self.map = Some(Arc::new(map));
-        self.map_changed = true;
+        self.map = Some(map);
+    }
+
+    /// Counts an input of the node's own (e.g. a bad map or transform) in this camera's status.
+    pub fn count_error(&self, reason: &str, detail: String) {
+        lock(&self.stats).error(reason, detail);
     }
 
     /// Hands out the frames (and late parts) that waited past the time-out at `now`.
@@ -238,9 +242,7 @@ impl Ingest {
             }
         }
         drop(s);
-        let new_map = if self.map_changed { self.map.clone() } else { None };
-        self.map_changed = false;
-        let dropped = self.queue.push(Job { frame, handed_out: Instant::now(), new_map });
+        let dropped = self.queue.push(Job { frame, handed_out: Instant::now() });
         let mut stats = lock(&self.stats);
         stats.queued_max = stats.queued_max.max(self.queue.len());
         if let Some(old) = dropped {

@@ -54,39 +54,63 @@ pub fn load(path: &Path, frame_id: &str) -> Result<LoadedMap, MapFileError> {
     Ok(LoadedMap { map: MapCloud { frame_id: frame_id.to_string(), points }, non_finite })
 }
 
+/// A PLY vertex as read: its x, y, z (of any scalar type) and which of them the file gave. Only
+/// these are kept (a generic element holds a map of every property: ~2 GB for 5 M vertices).
+#[derive(Default)]
+struct PlyVertex {
+    xyz: [f64; 3],
+    seen: u8,
+}
+
+impl ply_rs_bw::ply::PropertyAccess for PlyVertex {
+    fn new() -> Self {
+        Self::default()
+    }
+
+    fn set_property(&mut self, name: &str, property: ply_rs_bw::ply::Property) {
+        use ply_rs_bw::ply::Property;
+        let axis = match name {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            _ => return,
+        };
+        let value = match property {
+            Property::Char(v) => f64::from(v),
+            Property::UChar(v) => f64::from(v),
+            Property::Short(v) => f64::from(v),
+            Property::UShort(v) => f64::from(v),
+            Property::Int(v) => f64::from(v),
+            Property::UInt(v) => f64::from(v),
+            Property::Float(v) => f64::from(v),
+            Property::Double(v) => v,
+            // A list is no coordinate: the vertex stays without it (an error below).
+            _ => return,
+        };
+        self.xyz[axis] = value;
+        self.seen |= 1 << axis;
+    }
+}
+
 fn read_ply(path: &Path) -> Result<Vec<[f64; 3]>, MapFileError> {
-    use ply_rs_bw::ply::{DefaultElement, Property};
+    use ply_rs_bw::parser::Parser;
+    use ply_rs_bw::ply::DefaultElement;
     let file = std::fs::File::open(path).map_err(|source| MapFileError::Io { path: path.into(), source })?;
     let mut reader = std::io::BufReader::new(file);
-    let parser = ply_rs_bw::parser::Parser::<DefaultElement>::new();
-    let ply = parser.read_ply(&mut reader).map_err(|e| MapFileError::Parse {
-        path: path.into(),
-        format: "PLY",
-        reason: e.to_string(),
-    })?;
+    let parse = |e: std::io::Error| MapFileError::Parse { path: path.into(), format: "PLY", reason: e.to_string() };
     let missing = |found: String| MapFileError::MissingCoordinates { path: path.into(), what: "vertex x, y, z", found };
-    let vertices =
-        ply.payload.get("vertex").ok_or_else(|| missing(ply.payload.keys().cloned().collect::<Vec<_>>().join(", ")))?;
-    let scalar = |p: Option<&Property>| -> Option<f64> {
-        Some(match p? {
-            Property::Char(v) => f64::from(*v),
-            Property::UChar(v) => f64::from(*v),
-            Property::Short(v) => f64::from(*v),
-            Property::UShort(v) => f64::from(*v),
-            Property::Int(v) => f64::from(*v),
-            Property::UInt(v) => f64::from(*v),
-            Property::Float(v) => f64::from(*v),
-            Property::Double(v) => *v,
-            _ => return None,
-        })
-    };
-    vertices
-        .iter()
-        .map(|v| match (scalar(v.get("x")), scalar(v.get("y")), scalar(v.get("z"))) {
-            (Some(x), Some(y), Some(z)) => Ok([x, y, z]),
-            _ => Err(missing(v.keys().cloned().collect::<Vec<_>>().join(", "))),
-        })
-        .collect()
+    let vertices = Parser::<PlyVertex>::new();
+    let header = vertices.read_header(&mut reader).map_err(parse)?;
+    for (name, element) in &header.elements {
+        if name == "vertex" {
+            let read = vertices.read_payload_for_element(&mut reader, element, &header).map_err(parse)?;
+            let found = || element.properties.keys().cloned().collect::<Vec<_>>().join(", ");
+            return read.into_iter().map(|v| if v.seen == 0b111 { Ok(v.xyz) } else { Err(missing(found())) }).collect();
+        }
+        // An element before the vertices (rare) is read past.
+        Parser::<DefaultElement>::new().read_payload_for_element(&mut reader, element, &header).map_err(parse)?;
+    }
+    Err(missing(header.elements.keys().cloned().collect::<Vec<_>>().join(", ")))
 }
 
 fn read_pcd(path: &Path) -> Result<Vec<[f64; 3]>, MapFileError> {
@@ -203,6 +227,18 @@ mod tests {
             let got: Vec<[f32; 3]> = loaded.map.points.iter().map(|p| [p.x, p.y, p.z]).collect();
             assert_eq!(got, POINTS[..2].to_vec(), "{name}");
         }
+    }
+
+    #[test]
+    fn ply_vertices_after_another_element_are_found() {
+        let tmp = tempfile::tempdir().unwrap();
+        let p = tmp.path().join("first.ply");
+        let text = "ply\nformat ascii 1.0\nelement camera 1\nproperty uchar id\nelement vertex 2\nproperty double z\n\
+                    property float x\nproperty float y\nproperty uchar red\nend_header\n7\n3 1 2 255\n6 4 5 0\n";
+        std::fs::write(&p, text).unwrap();
+        let loaded = load(&p, "map").unwrap();
+        let got: Vec<[f32; 3]> = loaded.map.points.iter().map(|p| [p.x, p.y, p.z]).collect();
+        assert_eq!(got, [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
     }
 
     #[test]

@@ -9,7 +9,9 @@
 //! ```
 //!
 //! `run` does the node's life in named steps (parameters, publishers, subscriptions, loop,
-//! shutdown); `readers`, `ingest`, `worker` and `outputs` are the rooms it wires. Nothing heavy
+//! shutdown); `readers`, `ingest`, `worker` and `outputs` are the rooms it wires, once per
+//! camera (`cameras`: one, or one per `node.cameras` namespace), all on the node's one map
+//! (`map_inbox`) and its one index (`map_index::swap::MapSwap`). Nothing heavy
 //! runs in the DDS receive path: readers only decode and convert (with the conversions bag
 //! replay uses), the localizer runs on tokio's blocking pool, one frame at a time. Bad input
 //! (undecodable messages, non-finite correspondences, unsupported depth encodings, frames with
@@ -17,6 +19,7 @@
 //! `/diagnostics` and logged; the node keeps going. Topics are the [`crate::bag::TopicMap`]'s,
 //! resolved with `--ros-args` remaps.
 
+mod cameras;
 pub mod clock;
 pub mod dds;
 pub mod diagnostics;
@@ -27,6 +30,7 @@ pub mod initial_pose;
 pub mod install;
 mod log;
 pub mod map_file;
+mod map_inbox;
 mod outputs;
 pub mod qos_watch;
 pub mod queue;
@@ -34,6 +38,7 @@ mod readers;
 pub mod ros_params;
 mod run;
 pub mod services;
+mod setup;
 pub mod tf;
 pub mod tf_buffer;
 mod topics;

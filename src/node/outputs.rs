@@ -52,7 +52,7 @@ impl Recorder {
     }
 }
 
-/// The worker's publishers.
+/// The worker's publishers (one set per camera; `/tf` is the node's, shared).
 pub struct Outputs {
     topics: Topics,
     pose: Publisher<msgs::PoseStamped>,
@@ -68,18 +68,18 @@ pub struct Outputs {
 }
 
 impl Outputs {
-    /// Creates the result publishers on `node`.
+    /// Creates the result publishers of one camera on `node`; `tf`: the node's `/tf` publisher
+    /// (`None`: `publish_tf` is off).
     pub fn create(
         node: &mut ros2_client::Node,
         topics: &Topics,
         np: &NodeParams,
+        tf: Option<Arc<Publisher<msgs::TFMessage>>>,
         broadcast: Arc<Mutex<TfBroadcast>>,
         recorder: Recorder,
         stats: Arc<Mutex<Stats>>,
     ) -> Result<Self> {
         let out_qos = dds::reliable(10);
-        let tf =
-            if np.publish_tf { Some(Arc::new(dds::publisher(node, &topics.tf, &dds::reliable(100))?)) } else { None };
         let base_pose = if lock(&broadcast).frames().base.is_empty() {
             None
         } else {
@@ -99,11 +99,6 @@ impl Outputs {
             recorder,
             stats,
         })
-    }
-
-    /// The /tf publisher, for the periodic re-send of `map → odom`.
-    pub fn tf_publisher(&self) -> Option<Arc<Publisher<msgs::TFMessage>>> {
-        self.tf.clone()
     }
 
     async fn send<M: RosMessage + Clone + std::fmt::Debug>(&self, p: &Publisher<M>, topic: &str, msg: M) {

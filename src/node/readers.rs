@@ -14,7 +14,7 @@ use tokio::sync::mpsc;
 
 use super::dds;
 use super::image as img;
-use super::ingest::Input;
+use super::ingest::{Input, Routed};
 use super::initial_pose::{gate_from_msg, GateWidth, PoseGate};
 use super::log::{info, lock};
 use super::services;
@@ -29,12 +29,7 @@ use crate::params::{MapQos, Names, NodeParams};
 /// nothing for the ingest task). (ros2-client's sample streams are not `Send`, so each reader
 /// gets its own small thread; it only decodes and converts, and ends when the ingest side is
 /// gone.)
-fn spawn_reader<M, F>(
-    sub: Subscription<M>,
-    topic: String,
-    tx: mpsc::Sender<Input>,
-    convert: F,
-) -> Result<JoinHandle<()>>
+fn spawn_reader<M, F>(sub: Subscription<M>, topic: String, to: Route, convert: F) -> Result<JoinHandle<()>>
 where
     M: RosMessage + Send + 'static,
     F: Fn(M) -> Option<Input> + Send + 'static,
@@ -51,7 +46,7 @@ where
                         Err(e) => Some(Input::ReadError { topic: topic.clone(), reason: format!("{e:?}") }),
                     };
                     let Some(input) = input else { continue };
-                    if tx.send(input).await.is_err() {
+                    if to.tx.send(Routed { camera: to.camera, input }).await.is_err() {
                         break;
                     }
                 }
@@ -75,14 +70,23 @@ where
     F: Fn(M) -> Option<Input> + Send + 'static,
 {
     let sub = dds::subscription::<M>(readers.node, topic, qos)?;
-    readers.threads.push(spawn_reader(sub, topic.to_string(), readers.tx.clone(), convert)?);
+    let to = Route { tx: readers.tx.clone(), camera: readers.camera };
+    readers.threads.push(spawn_reader(sub, topic.to_string(), to, convert)?);
     Ok(())
+}
+
+/// Where a reader's inputs go: the ingest task's channel, tagged with their camera.
+struct Route {
+    tx: mpsc::Sender<Routed>,
+    camera: Option<usize>,
 }
 
 /// What the subscriptions are made on and handed to.
 pub struct Readers<'a> {
     pub node: &'a mut Node,
-    pub tx: mpsc::Sender<Input>,
+    pub tx: mpsc::Sender<Routed>,
+    /// The camera the next subscriptions are for (`None`: the node's own, e.g. the map, TF).
+    pub camera: Option<usize>,
     pub threads: Vec<JoinHandle<()>>,
 }
 
@@ -215,29 +219,30 @@ pub fn subscribe_initial_pose(
     })
 }
 
-/// `~/load_map` (reloads `map_path`) and `~/relocalize` (drops the initial-pose gate).
-pub fn spawn_services(
-    r: &mut Readers,
-    names: &Names,
-    np: &NodeParams,
-    gate: &Arc<Mutex<Option<PoseGate>>>,
-) -> Result<()> {
+/// `~/load_map`: reloads `map_path` (the node's one map).
+pub fn spawn_load_map(r: &mut Readers, names: &Names, np: &NodeParams) -> Result<()> {
     let (load_map_tx, map_path, map_frame_id) = (r.tx.clone(), np.map_path.clone(), np.map_frame_id.clone());
     let load_map = move || {
         let (response, map) = services::load_map_answer(&map_path, &map_frame_id);
         if let Some(map) = map {
+            let input = Input::Map(Ok(convert::DecodedMap { map, notes: Vec::new() }));
             // The node is shutting down when the ingest side is gone.
-            let _ = load_map_tx.blocking_send(Input::Map(Ok(convert::DecodedMap { map, notes: Vec::new() })));
+            let _ = load_map_tx.blocking_send(Routed { camera: None, input });
         }
         response
     };
     r.threads.push(services::spawn_trigger(r.node, &names.resolve("~/load_map"), load_map, info)?);
+    Ok(())
+}
+
+/// `relocalize` of one camera (the service `name`): drops its initial-pose gate.
+pub fn spawn_relocalize(r: &mut Readers, name: &str, gate: &Arc<Mutex<Option<PoseGate>>>) -> Result<()> {
     let gate = gate.clone();
     let relocalize = move || {
         let had = lock(&gate).take().is_some();
         let message = if had { "initial pose dropped: localizing globally" } else { "no initial pose was set" };
         services::TriggerResponse { success: true, message: message.into() }
     };
-    r.threads.push(services::spawn_trigger(r.node, &names.resolve("~/relocalize"), relocalize, info)?);
+    r.threads.push(services::spawn_trigger(r.node, name, relocalize, info)?);
     Ok(())
 }

@@ -76,7 +76,10 @@ fn to_parameter_value(v: &Value) -> Option<ParameterValue> {
 }
 
 fn sequence_value(items: &[Value]) -> Option<ParameterValue> {
-    if items.iter().all(Value::is_bool) {
+    if items.is_empty() {
+        // No element to tell the type by: the node's one list parameter (`node.cameras`) is of names.
+        Some(ParameterValue::StringArray(Vec::new()))
+    } else if items.iter().all(Value::is_bool) {
         Some(ParameterValue::BooleanArray(items.iter().filter_map(Value::as_bool).collect()))
     } else if items.iter().all(|v| v.as_i64().is_some()) {
         Some(ParameterValue::IntegerArray(items.iter().filter_map(Value::as_i64).collect()))
@@ -134,11 +137,11 @@ pub fn with_value(params: &AppParams, name: &str, value: &ParameterValue) -> Res
     Ok(changed)
 }
 
-/// Where the live parameters act.
+/// Where the live parameters act (the statistics and TF of every camera).
 #[derive(Clone)]
 pub struct LiveTargets {
-    pub stats: Arc<Mutex<Stats>>,
-    pub broadcast: Arc<Mutex<TfBroadcast>>,
+    pub stats: Vec<Arc<Mutex<Stats>>>,
+    pub broadcast: Vec<Arc<Mutex<TfBroadcast>>>,
     pub gate_width: Arc<Mutex<GateWidth>>,
     pub clock: NodeClock,
 }
@@ -174,8 +177,12 @@ impl LiveParams {
         }
         let n = &changed.node;
         let t = &self.targets;
-        lock(&t.stats).health.set_min_rate_hz(n.min_rate_hz);
-        lock(&t.broadcast).set_tolerance_ns(tolerance_ns(n.transform_tolerance_s));
+        for stats in &t.stats {
+            lock(stats).health.set_min_rate_hz(n.min_rate_hz);
+        }
+        for broadcast in &t.broadcast {
+            lock(broadcast).set_tolerance_ns(tolerance_ns(n.transform_tolerance_s));
+        }
         *lock(&t.gate_width) = GateWidth {
             sigmas: n.initialpose_gate_sigmas,
             min_radius_m: n.initialpose_min_radius_m,

@@ -7,8 +7,8 @@ use crate::params::NodeParams;
 fn live(params: &AppParams) -> (LiveParams, LiveTargets) {
     let buffer = Arc::new(Mutex::new(TfHistory::default()));
     let targets = LiveTargets {
-        stats: Arc::new(Mutex::new(Stats::default())),
-        broadcast: Arc::new(Mutex::new(TfBroadcast::new(&params.node, buffer))),
+        stats: vec![Arc::new(Mutex::new(Stats::default()))],
+        broadcast: vec![Arc::new(Mutex::new(TfBroadcast::new(&params.node, buffer)))],
         gate_width: Arc::new(Mutex::new(GateWidth { sigmas: 3.0, min_radius_m: 0.5, min_angle_deg: 15.0 })),
         clock: NodeClock::new(false),
     };
@@ -35,6 +35,16 @@ fn every_parameter_is_declared_under_its_dotted_name_with_its_value() {
     // use_sim_time where ROS tools look for it, not under node.
     assert_eq!(value_of(&declared, "use_sim_time"), &ParameterValue::Boolean(true));
     assert!(declared.iter().all(|p| p.name != "node.use_sim_time"));
+    // The camera list is a string array, empty or not (an empty YAML list has no element type).
+    assert_eq!(value_of(&declared, "node.cameras"), &ParameterValue::StringArray(vec![]));
+    let two = AppParams {
+        node: NodeParams { cameras: vec!["cam0".into(), "cam1".into()], ..NodeParams::default() },
+        ..AppParams::default()
+    };
+    let cams = ParameterValue::StringArray(vec!["cam0".into(), "cam1".into()]);
+    let two_declared = super::declared(&two).unwrap();
+    assert_eq!(value_of(&two_declared, "node.cameras"), &cams);
+    assert_eq!(with_value(&AppParams::default(), "node.cameras", &cams).unwrap().node.cameras, two.node.cameras);
     // Each declared value reads back as the same parameters (a `ros2 param dump` is a params file).
     let mut again = AppParams::default();
     for p in &declared {

@@ -142,6 +142,9 @@ pub struct TfBroadcast {
     logged: BTreeSet<&'static str>,
     said_fallback: bool,
     said_no_base: bool,
+    /// Whether this camera sends `map → odom` (of a node's several cameras, only the first: one
+    /// robot has one `map → odom`, see docs/multi-camera.md).
+    sends_map_odom: bool,
 }
 
 impl TfBroadcast {
@@ -159,7 +162,15 @@ impl TfBroadcast {
             logged: BTreeSet::new(),
             said_fallback: false,
             said_no_base: false,
+            sends_map_odom: true,
         }
+    }
+
+    /// A camera of a several-camera node other than the first: it sends no `map → odom` (the
+    /// first camera does), still `map → <its camera>` where that is the mode, and its base pose.
+    pub fn without_map_to_odom(mut self) -> Self {
+        self.sends_map_odom = false;
+        self
     }
 
     /// A new `transform_tolerance_s` (a live parameter change): the future-dating and the
@@ -222,6 +233,9 @@ impl TfBroadcast {
         if to_camera {
             out.tf = Some(tf_message(stamp, &self.frames.map, camera, map_camera));
             out.kind = Some("map_to_camera");
+            return;
+        }
+        if !self.sends_map_odom {
             return;
         }
         let odom_camera = lock(&self.buffer).lookup(&self.frames.odom, camera, stamp);

@@ -147,3 +147,21 @@ fn a_base_chain_heard_but_not_at_the_stamp_is_counted() {
     assert!(p.error.to_string().contains("odom → camera_optical"), "{}", p.error);
     assert!(tf.for_frame(10 * S, CAM, "map", &Isometry3::identity(), true).base_pose.is_some());
 }
+
+#[test]
+fn of_several_cameras_only_the_first_sends_map_to_odom() {
+    let buffer = Arc::new(Mutex::new(TfHistory::with_slack(S / 10)));
+    odometry(&buffer);
+    let map_cam = iso([3.0, -1.0, 1.5], [0.2, 1.0, -0.3], 0.7);
+    let mut first = TfBroadcast::new(&params(TfMode::MapToOdom), buffer.clone());
+    let mut other = TfBroadcast::new(&params(TfMode::MapToOdom), buffer.clone()).without_map_to_odom();
+    let sent = first.for_frame(10 * S, CAM, "map", &map_cam, true);
+    assert_eq!(sent.kind, Some("map_to_odom"));
+    let quiet = other.for_frame(10 * S, CAM, "map", &map_cam, true);
+    assert!(quiet.tf.is_none() && quiet.kind.is_none() && quiet.problems.is_empty(), "{quiet:?}");
+    assert!(quiet.base_pose.is_some(), "its base pose is still published");
+    assert_eq!(other.republish(11 * S), None, "nothing to re-send");
+    // map → camera names the camera's own frame: every camera sends its own.
+    let mut own = TfBroadcast::new(&params(TfMode::MapToCamera), buffer).without_map_to_odom();
+    assert_eq!(own.for_frame(10 * S, CAM, "map", &map_cam, true).kind, Some("map_to_camera"));
+}

@@ -8,6 +8,8 @@
 //! given. `/diagnostics`, `/tf` and `/tf_static` stay absolute, as `diagnostic_updater` and
 //! tf2 have them (remap them, e.g. `-r /tf:=tf`, to keep them per robot).
 
+use std::convert::Infallible;
+
 use crate::bag::TopicMap;
 use crate::params::{AppParams, Names};
 
@@ -42,27 +44,75 @@ fn relative_if_default(value: &str, default: &str) -> String {
     }
 }
 
+/// A camera of a several-camera node whose topic would not move under its namespace.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error(
+    "camera {camera:?}: {key} is the absolute name {topic:?}, which every camera of node.cameras would share; \
+     give it as a relative name (it then moves under each camera's namespace) or remap the camera's topic"
+)]
+pub struct SharedCameraTopic {
+    pub camera: String,
+    pub key: &'static str,
+    pub topic: String,
+}
+
 impl Topics {
+    /// The topics of a node with one camera.
     pub fn new(params: &AppParams, names: &Names) -> Self {
+        let Ok(topics) = Self::resolved_with(params, names, |_, name| Ok::<_, Infallible>(names.resolve(name)));
+        topics
+    }
+
+    /// The topics of camera `camera` (a namespace relative to the node's, from `node.cameras`;
+    /// empty: the node's one camera). Its inputs, outputs and `initialpose` move under the
+    /// camera's namespace; the map, `/diagnostics` and TF stay the node's. A camera's topic given
+    /// as an absolute name would be every camera's: refused.
+    pub fn for_camera(params: &AppParams, names: &Names, camera: &str) -> Result<Self, SharedCameraTopic> {
+        if camera.is_empty() {
+            return Ok(Self::new(params, names));
+        }
+        Self::resolved_with(params, names, |key, name| {
+            if name.starts_with('/') || name.starts_with('~') {
+                return Err(SharedCameraTopic { camera: camera.to_string(), key, topic: name.to_string() });
+            }
+            Ok(names.resolve(&format!("{camera}/{name}")))
+        })
+    }
+
+    /// The topics, the camera's resolved with `camera_topic` (its parameter's key, its name).
+    fn resolved_with<E>(
+        params: &AppParams,
+        names: &Names,
+        camera_topic: impl Fn(&'static str, &str) -> Result<String, E>,
+    ) -> Result<Self, E> {
         let (t, n, d) = (&params.topics, &params.node, TopicMap::default());
-        let topic = |value: &str, default: &str| names.resolve(&relative_if_default(value, default));
-        Self {
-            camera_info: topic(&t.camera_info, &d.camera_info),
-            image: topic(&t.image, &d.image),
-            image_raw: names.resolve(&n.image_raw_topic),
-            depth_prior: topic(&t.depth_prior, &d.depth_prior),
-            correspondences: topic(&t.correspondences, &d.correspondences),
-            map: topic(&t.map, &d.map),
-            pose: topic(&t.pose, &d.pose),
-            pose_with_covariance: topic(&t.pose_with_covariance, &d.pose_with_covariance),
-            output_correspondences: topic(&t.output_correspondences, &d.output_correspondences),
+        let topic =
+            |key: &'static str, value: &str, default: &str| camera_topic(key, &relative_if_default(value, default));
+        Ok(Self {
+            camera_info: topic("topics.camera_info", &t.camera_info, &d.camera_info)?,
+            image: topic("topics.image", &t.image, &d.image)?,
+            image_raw: camera_topic("node.image_raw_topic", &n.image_raw_topic)?,
+            depth_prior: topic("topics.depth_prior", &t.depth_prior, &d.depth_prior)?,
+            correspondences: topic("topics.correspondences", &t.correspondences, &d.correspondences)?,
+            map: names.resolve(&relative_if_default(&t.map, &d.map)),
+            pose: topic("topics.pose", &t.pose, &d.pose)?,
+            pose_with_covariance: topic(
+                "topics.pose_with_covariance",
+                &t.pose_with_covariance,
+                &d.pose_with_covariance,
+            )?,
+            output_correspondences: topic(
+                "topics.output_correspondences",
+                &t.output_correspondences,
+                &d.output_correspondences,
+            )?,
             diagnostics: names.resolve(&n.diagnostics_topic),
             tf: names.resolve(&n.tf_topic),
             tf_static: names.resolve(&n.tf_static_topic),
-            debug_image: names.resolve(&n.debug_image_topic),
-            base_pose: names.resolve(&n.base_pose_topic),
-            initial_pose: names.resolve(&n.initialpose_topic),
-        }
+            debug_image: camera_topic("node.debug_image_topic", &n.debug_image_topic)?,
+            base_pose: camera_topic("node.base_pose_topic", &n.base_pose_topic)?,
+            initial_pose: camera_topic("node.initialpose_topic", &n.initialpose_topic)?,
+        })
     }
 }
 
@@ -103,5 +153,31 @@ mod tests {
         // Remaps apply to the relative names, as rcl does.
         let r = topics(&["--ros-args", "-r", "__ns:=/cam0", "-r", "matcher/correspondences:=/m/c"]);
         assert_eq!(r.correspondences, "/m/c");
+    }
+
+    #[test]
+    fn each_camera_of_a_node_gets_its_namespace_and_the_map_stays_one() {
+        let a = RosArgs::parse(&["--ros-args", "-r", "__ns:=/robot", "-r", "/robot/cam1/angle_i2p/pose:=/p1"]).unwrap();
+        let names = Names::new("angle_i2p", &a);
+        let r = resolve(&Layers { names: &names, params_file: None, ros_args: &a }).unwrap();
+        let cam0 = Topics::for_camera(&r, &names, "cam0").unwrap();
+        let cam1 = Topics::for_camera(&r, &names, "cam1").unwrap();
+        assert_eq!(cam0.camera_info, "/robot/cam0/camera/camera_info");
+        assert_eq!(cam0.correspondences, "/robot/cam0/matcher/correspondences");
+        assert_eq!(cam0.pose, "/robot/cam0/angle_i2p/pose");
+        assert_eq!(cam0.initial_pose, "/robot/cam0/initialpose");
+        assert_eq!(cam0.base_pose, "/robot/cam0/angle_i2p/base_pose");
+        assert_eq!(cam1.pose, "/p1", "remaps apply to a camera's names");
+        for t in [&cam0, &cam1] {
+            assert_eq!(
+                (t.map.as_str(), t.tf.as_str(), t.diagnostics.as_str()),
+                ("/robot/map/points", "/tf", "/diagnostics")
+            );
+        }
+        let mut shared = r.clone();
+        shared.topics.correspondences = "/matcher/all".into();
+        let err = Topics::for_camera(&shared, &names, "cam0").unwrap_err();
+        assert_eq!(err.key, "topics.correspondences");
+        assert!(Topics::for_camera(&shared, &names, "").is_ok(), "one camera may read any topic");
     }
 }

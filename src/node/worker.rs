@@ -1,6 +1,7 @@
-//! The worker: takes frames from the queue, runs the localizer on tokio's blocking pool (one
-//! frame at a time; a panic becomes a counted failure and a fresh localizer), applies the
-//! `/initialpose` gate and publishes.
+//! The worker (one per camera): takes frames from its queue, runs its localizer on tokio's
+//! blocking pool (one frame at a time; a panic becomes a counted failure and a fresh localizer),
+//! applies the `/initialpose` gate and publishes. A new map index is taken from the node's shared
+//! [`MapSwap`] between two frames.
 
 use std::sync::{Arc, Mutex};
 
@@ -11,8 +12,7 @@ use super::log::{lock, warn};
 use super::outputs::Outputs;
 use super::queue::DropOldestQueue;
 use crate::frame::{Frame, Stamp};
-use crate::map_index::swap::MapSwap;
-use crate::map_index::{IndexSettings, MapIndex};
+use crate::map_index::swap::{MapSwap, MapTaker};
 use crate::pipeline::{Localization, Localizer, LocalizerParams, SetupError};
 
 /// Why a frame got no localization at all (not even a failure value).
@@ -24,21 +24,27 @@ pub enum LocalizeError {
     TaskFailed { stamp: Stamp, reason: String },
 }
 
-/// A localized frame with the localizer that did it (handed back for the next frame).
+/// A localized frame with the localizer that did it and the worker's map hand-over (both
+/// handed back for the next frame).
 struct Localized {
     localizer: Localizer,
+    maps: MapTaker,
     frame: Frame,
     localization: Localization,
 }
 
-/// Runs `localizer` on `frame` on the blocking pool. On an error the localizer is lost: the
-/// caller starts a fresh one.
-async fn localize(localizer: Localizer, frame: Frame) -> Result<Localized, LocalizeError> {
+/// Runs `localizer` on `frame` on the blocking pool, on the newest map index first when one is
+/// ready (the first one is waited for). On an error the localizer is lost: the caller starts a
+/// fresh one.
+async fn localize(localizer: Localizer, maps: MapTaker, frame: Frame) -> Result<Localized, LocalizeError> {
     let stamp = frame.stamp;
     let handle = tokio::task::spawn_blocking(move || {
-        let mut localizer = localizer;
+        let (mut localizer, mut maps) = (localizer, maps);
+        if let Some(index) = maps.take_ready() {
+            localizer.set_map_index(index);
+        }
         let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| localizer.process(&frame)));
-        out.map(|localization| Localized { localizer, frame, localization })
+        out.map(|localization| Localized { localizer, maps, frame, localization })
     });
     match handle.await {
         Ok(Ok(done)) => Ok(done),
@@ -47,29 +53,23 @@ async fn localize(localizer: Localizer, frame: Frame) -> Result<Localized, Local
     }
 }
 
-/// A localizer with `params`, on the indexed map when one was set.
-fn fresh_localizer(params: &LocalizerParams, map: Option<Arc<MapIndex>>) -> Result<Localizer, SetupError> {
-    let mut localizer = Localizer::new(params.clone())?;
-    if let Some(index) = map {
-        localizer.set_map_index(index);
-    }
-    Ok(localizer)
+/// A fresh localizer with `params`, and a fresh hand-over that gives it the current index.
+fn fresh_localizer(params: &LocalizerParams, swap: &Arc<MapSwap>) -> Result<(Localizer, MapTaker), SetupError> {
+    Ok((Localizer::new(params.clone())?, swap.taker()))
 }
 
 /// Localizes and publishes every queued frame until the queue is closed.
 pub async fn run(
     queue: Arc<DropOldestQueue<Job>>,
     localizer: Localizer,
+    swap: Arc<MapSwap>,
     outputs: Outputs,
     gate: Arc<Mutex<Option<PoseGate>>>,
 ) {
     let params = localizer.params().clone();
-    let mut localizer = Some(localizer);
-    // A new map is indexed on its own thread and swapped in between two frames (the first one
-    // is waited for).
-    let mut maps = MapSwap::default();
+    let mut localizer = Some((localizer, swap.taker()));
     while let Some(job) = queue.pop().await {
-        let mut current = match localizer.take().map_or_else(|| fresh_localizer(&params, maps.current()), Ok) {
+        let (mut current, maps) = match localizer.take().map_or_else(|| fresh_localizer(&params, &swap), Ok) {
             Ok(current) => current,
             Err(e) => {
                 // It was set up once with these parameters; count the frame and try again next time.
@@ -80,15 +80,9 @@ pub async fn run(
                 continue;
             }
         };
-        if let Some(new) = job.new_map {
-            maps.new_map(new, IndexSettings::from_verify(&params.verify));
-        }
-        if let Some(index) = maps.take_ready() {
-            current.set_map_index(index);
-        }
         // The `/initialpose` gate steers PnP itself, not only the published pose.
         current.set_pose_gate(lock(&gate).clone());
-        let done = match localize(current, job.frame).await {
+        let done = match localize(current, maps, job.frame).await {
             Ok(done) => done,
             Err(e) => {
                 warn(format!("{e}; continuing with a fresh localizer"));
@@ -98,8 +92,8 @@ pub async fn run(
                 continue;
             }
         };
-        let Localized { localizer: back, frame, localization: mut loc } = done;
-        localizer = Some(back);
+        let Localized { localizer: back, maps, frame, localization: mut loc } = done;
+        localizer = Some((back, maps));
         apply_gate(&gate, &mut loc, &outputs.stats);
         outputs.publish(&loc, &frame).await;
         record_outcome(&outputs.stats, &loc, job.handed_out.elapsed().as_secs_f64() * 1e3);

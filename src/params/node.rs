@@ -83,6 +83,12 @@ pub struct NodeParams {
     /// ROS's `use_sim_time`: the node's own stamps (diagnostics) follow `/clock` when true.
     /// Its outputs always carry the input messages' stamps.
     pub use_sim_time: bool,
+    /// Several cameras in one node, sharing one map (`[cam0, cam1]`): each entry is a namespace
+    /// (relative to the node's) that the camera's relative topics and its `relocalize` service
+    /// move under (`cam0/camera/camera_info`, `cam0/angle_i2p/pose`, …), with its own frame
+    /// assembly, queue and worker; the map, TF and diagnostics stay the node's. Empty: one camera,
+    /// topics as configured. See docs/multi-camera.md.
+    pub cameras: Vec<String>,
 }
 
 /// Which transform the node broadcasts on `/tf` (REP 105).
@@ -158,6 +164,7 @@ impl Default for NodeParams {
             initialpose_min_radius_m: 0.5,
             initialpose_min_angle_deg: 15.0,
             use_sim_time: false,
+            cameras: Vec::new(),
         }
     }
 }

@@ -67,6 +67,22 @@ fn at_least(key: &'static str, value: u64, min: u64, range: &'static str) -> Res
     Err(InvalidParam { key, value: value.to_string(), range })
 }
 
+/// `node.cameras`: relative ROS names, none repeated.
+fn camera_namespaces(cameras: &[String]) -> Result<(), InvalidParam> {
+    const RANGE: &str = "distinct relative ROS names (letters, digits, _ and /; not starting with / or a digit, \
+                         no // nor a trailing /)";
+    for (i, name) in cameras.iter().enumerate() {
+        let tokens_ok = name.split('/').all(|t| {
+            t.chars().next().is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+                && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+        });
+        if !tokens_ok || cameras[..i].contains(name) {
+            return Err(InvalidParam { key: "node.cameras", value: format!("{name:?}"), range: RANGE });
+        }
+    }
+    Ok(())
+}
+
 impl AppParams {
     /// Checks every parameter with a range, the localizer's first; the first one outside its
     /// range is the error.
@@ -92,7 +108,8 @@ impl AppParams {
         real("node.min_rate_hz", n.min_rate_hz, Range::NonNegative)?;
         real("node.transform_tolerance_s", n.transform_tolerance_s, Range::NonNegative)?;
         real("node.tf_publish_rate_hz", n.tf_publish_rate_hz, Range::NonNegative)?;
-        at_least("node.queue_depth", n.queue_depth as u64, 1, "at least 1")
+        at_least("node.queue_depth", n.queue_depth as u64, 1, "at least 1")?;
+        camera_namespaces(&n.cameras)
     }
 }
 
@@ -189,6 +206,9 @@ mod tests {
     #[test]
     fn defaults_are_valid() {
         assert_eq!(AppParams::default().validate(), Ok(()));
+        let mut p = AppParams::default();
+        p.node.cameras = vec!["cam0".into(), "robot/cam_1".into()];
+        assert_eq!(p.validate(), Ok(()));
     }
 
     #[test]
@@ -207,6 +227,11 @@ mod tests {
             ("node.diagnostics_window_s", Box::new(|p| p.node.diagnostics_window_s = 0.0)),
             ("node.min_rate_hz", Box::new(|p| p.node.min_rate_hz = f64::INFINITY)),
             ("node.tf_publish_rate_hz", Box::new(|p| p.node.tf_publish_rate_hz = -1.0)),
+            ("node.cameras", Box::new(|p| p.node.cameras = vec!["/cam0".into()])),
+            ("node.cameras", Box::new(|p| p.node.cameras = vec!["cam0".into(), "cam0".into()])),
+            ("node.cameras", Box::new(|p| p.node.cameras = vec!["".into()])),
+            ("node.cameras", Box::new(|p| p.node.cameras = vec!["robot//cam".into()])),
+            ("node.cameras", Box::new(|p| p.node.cameras = vec!["0cam".into()])),
         ];
         for (key, set) in cases {
             let mut p = AppParams::default();

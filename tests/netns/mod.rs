@@ -6,6 +6,8 @@
 
 #![allow(dead_code)]
 
+pub mod camera;
+
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
