@@ -149,6 +149,7 @@ fn run(cli: Cli) -> Result<()> {
             if let Some(m) = method {
                 params.localizer.method = m;
             }
+            app::work_on_this_thread();
             replay(&bag, &out, &params, verbose)
         }
         Command::Node { params_file, record, ros_args } => {

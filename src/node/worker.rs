@@ -1,5 +1,5 @@
 //! The worker (one per camera): takes frames from its queue, runs its localizer on tokio's
-//! blocking pool (one frame at a time; a panic becomes a counted failure and a fresh localizer),
+//! blocking pool and, within it, on one of rayon's threads (one frame at a time; a panic becomes a counted failure and a fresh localizer),
 //! applies the `/initialpose` gate and publishes. A new map index is taken from the node's shared
 //! [`MapSwap`] between two frames.
 
@@ -43,7 +43,9 @@ async fn localize(localizer: Localizer, maps: MapTaker, frame: Frame) -> Result<
         if let Some(index) = maps.take_ready() {
             localizer.set_map_index(index);
         }
-        let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| localizer.process(&frame)));
+        // The frame runs on one of rayon's threads, so its parallel parts start there rather
+        // than each waiting for a pool thread to wake.
+        let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| rayon::scope(|_| localizer.process(&frame))));
         out.map(|localization| Localized { localizer, maps, frame, localization })
     });
     match handle.await {

@@ -1,5 +1,6 @@
-//! Tests of robust PnP: the minimal and non-minimal solvers (`solvers`) and the robust
-//! estimation around them (`robust`), on shared synthetic scenes.
+//! Tests of robust PnP: the minimal and non-minimal solvers (`solvers`), the robust
+//! estimation around them (`robust`) and its verification (`verification`), on shared
+//! synthetic scenes.
 
 use super::*;
 use crate::geometry::Intrinsics;
@@ -110,5 +111,18 @@ fn pose_error(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
     (d.rotation.angle(), (a.translation.vector - b.translation.vector).norm())
 }
 
+/// A pose, its pixels and map points, and which correspondences are true.
+type Scenario = (Isometry3<f64>, Vec<Point2<f64>>, Vec<Point3<f64>>, Vec<bool>);
+
+/// `n` matches of a random pose with 1 px noise, `outlier_ratio` of them corrupted.
+fn scenario(seed: u64, n: usize, outlier_ratio: f64) -> Scenario {
+    let mut rng = WyRand::new(seed);
+    let pose = random_pose(&mut rng);
+    let (mut px, pw) = visible(&mut rng, &pose, n, 1.0);
+    let truth = corrupt(&mut rng, &mut px, &pw, outlier_ratio);
+    (pose, px, pw, truth)
+}
+
 mod robust;
 mod solvers;
+mod verification;
