@@ -183,6 +183,9 @@ pub fn write_bag(dir: &Path, topics: &TopicMap, config: &SynthConfig) -> Result<
     let n = run.frame_count();
     let first = if n > 0 { FIRST_STAMP + 100_000_000 } else { 100_000_000 };
     let map_stamp = first.saturating_sub(100_000_000).max(0);
+    // Offered latched, as a map server does: played back, a node that matches the map's
+    // publisher late still gets it (volatile, a large map was lost to the discovery race).
+    writer.latch(&topics.map);
     writer.write(&topics.map, map_stamp, &convert::point_cloud(map_stamp, run.map()))?;
     let mut ratio_sum = 0.0;
     for start in (0..n).step_by(BATCH) {
@@ -207,6 +210,26 @@ mod tests {
     fn building(frames: usize, map_points: usize) -> SynthRun {
         let preset = SynthConfig::preset("building").expect("building preset");
         SynthRun::new(&SynthConfig { frames, map_points, seed: 4, ..preset })
+    }
+
+    /// The bag offers the map latched (transient local), the frames volatile, as
+    /// [`crate::bag::write_input_bag`] does: a player's late-matching subscriber still gets it.
+    #[test]
+    fn the_bag_offers_the_map_latched() {
+        let tmp = tempfile::tempdir().expect("a temporary directory");
+        let dir = tmp.path().join("bag");
+        let topics = TopicMap::default();
+        let config = SynthConfig { frames: 1, ..SynthConfig::preset("hard").expect("hard preset") };
+        write_bag(&dir, &topics, &config).expect("a bag");
+        let text = std::fs::read_to_string(dir.join("metadata.yaml")).expect("metadata");
+        let durability = |topic: &str| {
+            let at = text.find(&format!("name: {topic}\n")).expect("the topic");
+            let rest = &text[at..];
+            let line = rest.lines().find(|l| l.trim_start().starts_with("durability:")).expect("durability");
+            line.trim().trim_start_matches("durability:").trim().to_string()
+        };
+        assert_eq!(durability(&topics.map), "transient_local");
+        assert_eq!(durability(&topics.correspondences), "volatile");
     }
 
     #[test]
