@@ -65,11 +65,6 @@ fn registered(frame: &crate::frame::Frame, loc: &Localization) -> Option<bool> {
     Some(loc.pose.as_ref().is_some_and(|p| pose_errors(p, pose, &frame.intrinsics, depth).registered()))
 }
 
-/// Runs `localizer` over every frame of the bag at `input` and writes the results to a new bag
-/// at `output`, frame by frame as they are read (memory does not grow with the bag's length).
-/// The bag is checked whole before the output is created; the map is used wherever it is in
-/// the bag. A frame that cannot be processed is skipped with its reason (in `/diagnostics` and
-/// the report). `on_frame` is called after each frame ([`FrameProgress`]).
 /// Makes the calling thread one of rayon's (the global pool's first): a frame's parallel parts
 /// then run on the thread that localizes it and are shared with the other threads as they are
 /// free, instead of that thread waiting for a pool thread to wake at every parallel step (on a
@@ -80,6 +75,11 @@ pub fn work_on_this_thread() {
     let _ = rayon::ThreadPoolBuilder::new().use_current_thread().build_global();
 }
 
+/// Runs `localizer` over every frame of the bag at `input` and writes the results to a new bag
+/// at `output`, frame by frame as they are read (memory does not grow with the bag's length).
+/// The bag is checked whole before the output is created; the map is used wherever it is in
+/// the bag. A frame that cannot be processed is skipped with its reason (in `/diagnostics` and
+/// the report). `on_frame` is called after each frame ([`FrameProgress`]).
 pub fn replay(
     input: &Path,
     output: &Path,

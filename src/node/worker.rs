@@ -1,6 +1,7 @@
 //! The worker (one per camera): takes frames from its queue, runs its localizer on tokio's
-//! blocking pool and, within it, on one of rayon's threads (one frame at a time; a panic becomes a counted failure and a fresh localizer),
-//! applies the `/initialpose` gate and publishes. A new map index is taken from the node's shared
+//! blocking pool and, within it, on one of rayon's threads (one frame at a time; a panic
+//! becomes a counted failure and a fresh localizer), applies the `/initialpose` gate and
+//! publishes. A new map index is taken from the node's shared
 //! [`MapSwap`] between two frames.
 
 use std::sync::{Arc, Mutex};

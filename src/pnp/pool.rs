@@ -114,8 +114,7 @@ impl<'a> Pool<'a> {
         for (&i, agreement) in pending.iter().zip(agreements) {
             self.items[i].agreement = Some(agreement);
         }
-        let min_view = self.verification.min_view;
-        self.items.iter().filter_map(|c| c.agreement).map(|a| a.in_view_share(min_view)).fold(0.0, f64::max)
+        self.trust()
     }
 
     /// Verifies the lowest-cost candidate alone; its in-view agreement.
@@ -172,15 +171,19 @@ impl<'a> Pool<'a> {
     }
 }
 
-/// Whether two candidates share more than half of the smaller inlier set.
+/// Whether two candidates share more than half of the smaller inlier set (their counts known).
 fn same_cluster(a: &Candidate, b: &Candidate) -> bool {
-    let shared: u32 = a.members.iter().zip(&b.members).map(|(x, y)| (x & y).count_ones()).sum();
-    2 * shared as usize > a.hypothesis.inliers.min(b.hypothesis.inliers)
+    shares_most(&a.members, &b.members, a.hypothesis.inliers.min(b.hypothesis.inliers))
 }
 
 /// Whether two inlier sets (bit sets) share more than half of the smaller one: one answer.
 pub(crate) fn same_inliers(a: &[u64], b: &[u64]) -> bool {
-    let count = |s: &[u64]| s.iter().map(|x| x.count_ones()).sum::<u32>();
+    let count = |s: &[u64]| s.iter().map(|x| x.count_ones() as usize).sum::<usize>();
+    shares_most(a, b, count(a).min(count(b)))
+}
+
+/// Whether bit sets `a` and `b` share more than half of `smaller` members.
+fn shares_most(a: &[u64], b: &[u64], smaller: usize) -> bool {
     let shared: u32 = a.iter().zip(b).map(|(x, y)| (x & y).count_ones()).sum();
-    2 * shared > count(a).min(count(b))
+    2 * shared as usize > smaller
 }
