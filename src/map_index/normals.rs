@@ -7,6 +7,7 @@ use std::collections::HashMap;
 use std::sync::Mutex;
 
 use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
 
 use super::voxels::VoxelGrid;
 use crate::geometry::{centroid, pca_normal, PointIndex};
@@ -42,7 +43,9 @@ pub struct LazyNormals {
 
 impl LazyNormals {
     /// The normal of each of `which` (indices into `points`), from its `k` nearest neighbours
-    /// in `index`; an index out of range gets a zero vector.
+    /// in `index`; an index out of range gets a zero vector. The ones not cached yet are solved
+    /// in parallel, outside the lock (another camera's frame may meanwhile read the cache; two
+    /// solving the same point get the same normal).
     pub fn get(
         &self,
         index: &dyn NearestPoints,
@@ -50,24 +53,50 @@ impl LazyNormals {
         k: usize,
         which: &[usize],
     ) -> Vec<Vector3<f32>> {
-        // A poisoned lock only means another thread panicked mid-insert: the cache stays valid.
-        let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
-        if cache.len() + which.len() > MAX_CACHED {
+        let key = |i: usize| u32::try_from(i).ok().filter(|_| i < points.len());
+        let mut missing: Vec<u32> = {
+            let cache = self.lock();
+            which.iter().filter_map(|&i| key(i)).filter(|key| !cache.contains_key(key)).collect()
+        };
+        missing.sort_unstable();
+        missing.dedup();
+        let solve = |neighbours: &mut Vec<Point3<f64>>, key: u32| match points.get(key as usize) {
+            Some(p) => point_normal(index, points, p, k, neighbours),
+            None => Vector3::zeros(),
+        };
+        let fresh: HashMap<u32, Vector3<f32>> = missing
+            .par_iter()
+            .map_init(|| Vec::with_capacity(k), |neighbours, &key| (key, solve(neighbours, key)))
+            .collect();
+        let mut cache = self.lock();
+        let mut neighbours = Vec::with_capacity(k);
+        let normals = which
+            .iter()
+            .map(|&i| match key(i) {
+                None => Vector3::zeros(),
+                // Cached before (unless the cache started afresh meanwhile) or solved just now.
+                Some(key) => match fresh.get(&key).or_else(|| cache.get(&key)) {
+                    Some(normal) => *normal,
+                    None => solve(&mut neighbours, key),
+                },
+            })
+            .collect();
+        if cache.len() + fresh.len() > MAX_CACHED {
             cache.clear();
         }
-        let mut neighbours = Vec::with_capacity(k);
-        which
-            .iter()
-            .map(|&i| {
-                let (Ok(key), Some(p)) = (u32::try_from(i), points.get(i)) else { return Vector3::zeros() };
-                *cache.entry(key).or_insert_with(|| point_normal(index, points, p, k, &mut neighbours))
-            })
-            .collect()
+        cache.extend(fresh);
+        normals
+    }
+
+    /// The cache (a poisoned lock only means another thread panicked mid-insert: the cache
+    /// stays valid).
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<u32, Vector3<f32>>> {
+        self.cache.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// Normals cached so far.
     pub fn cached(&self) -> usize {
-        self.cache.lock().unwrap_or_else(|e| e.into_inner()).len()
+        self.lock().len()
     }
 }
 

@@ -83,15 +83,27 @@ impl Graphs {
 }
 
 /// What building the graphs works in besides its output, kept between frames so that a frame
-/// allocates none of it again.
+/// allocates none of it again: the local graph's and the global one's apart, as they are built
+/// side by side.
 #[derive(Clone, Debug, Default)]
 pub struct GraphScratch {
+    local: LocalScratch,
+    keys: KeyScratch,
+}
+
+#[derive(Clone, Debug, Default)]
+struct LocalScratch {
     cloud: Vec<Point3<f32>>,
     seeds: Vec<usize>,
     farthest: Vec<f64>,
     theta: ConsistencyMatrix,
     group_image: Vec<Point3<f64>>,
     group_map: Vec<Point3<f64>>,
+}
+
+#[derive(Clone, Debug, Default)]
+struct KeyScratch {
+    theta: ConsistencyMatrix,
     key_image: Vec<Point3<f64>>,
     key_map: Vec<Point3<f64>>,
     key_unit_image: Vec<Vector3<f64>>,
@@ -107,7 +119,8 @@ pub fn build_graphs(image: &[Point3<f64>], map: &[Point3<f64>], scores: &[f32], 
     graphs
 }
 
-/// [`build_graphs`] into `graphs`, reusing its buffers and `scratch`'s.
+/// [`build_graphs`] into `graphs`, reusing its buffers and `scratch`'s. The local graph and the
+/// global one are built side by side (the same values as one after the other).
 pub fn build_graphs_into(
     graphs: &mut Graphs,
     image: &[Point3<f64>],
@@ -121,33 +134,54 @@ pub fn build_graphs_into(
     if n == 0 {
         return;
     }
-    local_graph(graphs, &image[..n], &map[..n], params, scratch);
+    let (image, map) = (&image[..n], &map[..n]);
+    let Graphs { local_index, nodes, neighbours, local_theta, global_index, global_theta, cross_theta } = graphs;
+    let ((node_count, k), ()) = rayon::join(
+        || local_graph(local_index, local_theta, image, map, params, &mut scratch.local),
+        || {
+            let global = crate::reject::top_k(&scores[..n], params.keypoints.min(n));
+            global_graph(&global, global_theta, cross_theta, image, map, params, &mut scratch.keys);
+            global_index.extend(global.iter().map(|&i| i as u32));
+        },
+    );
+    *nodes = node_count;
+    *neighbours = k;
+}
 
-    // Global graph: the M best-scored correspondences.
-    let global = crate::reject::top_k(&scores[..n], params.keypoints.min(n));
-    let s = scratch;
+/// The global graph over the `global` keypoints (the M best-scored correspondences): θ among
+/// them, and between every correspondence and each of them.
+fn global_graph(
+    global: &[usize],
+    global_theta: &mut Vec<f32>,
+    cross_theta: &mut Vec<f32>,
+    image: &[Point3<f64>],
+    map: &[Point3<f64>],
+    params: &GraphParams,
+    s: &mut KeyScratch,
+) {
     s.key_image.clear();
     s.key_image.extend(global.iter().map(|&i| image[i]));
     s.key_map.clear();
     s.key_map.extend(global.iter().map(|&i| map[i]));
     params.pair_theta(&s.key_image, &s.key_map, &mut s.theta);
-    graphs.global_theta.extend_from_slice(&s.theta.values);
-    graphs.global_index.extend(global.iter().map(|&i| i as u32));
+    global_theta.extend_from_slice(&s.theta.values);
     match params.theta {
-        PairMetric::Angle => cross_angle_theta(&image[..n], &map[..n], params.sigma_d, s, &mut graphs.cross_theta),
-        PairMetric::Distance => cross_distance_theta(&image[..n], &map[..n], s, params, &mut graphs.cross_theta),
+        PairMetric::Angle => cross_angle_theta(image, map, params.sigma_d, s, cross_theta),
+        PairMetric::Distance => cross_distance_theta(image, map, s, params, cross_theta),
     }
 }
 
 /// The local graph: nodes by farthest-point sampling of the map points, ~2 nodes per K points,
-/// each holding its K nearest correspondences and their θ.
+/// each holding its K nearest correspondences (into `index_out`) and their θ (into `theta_out`). The
+/// node count and K.
 fn local_graph(
-    graphs: &mut Graphs,
+    index_out: &mut Vec<u32>,
+    theta_out: &mut Vec<f32>,
     image: &[Point3<f64>],
     map: &[Point3<f64>],
     params: &GraphParams,
-    s: &mut GraphScratch,
-) {
+    s: &mut LocalScratch,
+) -> (usize, usize) {
     let n = map.len();
     let k = params.neighbours.min(n);
     let node_count = (2 * n).div_ceil(k).min(n);
@@ -155,8 +189,8 @@ fn local_graph(
     s.cloud.clear();
     s.cloud.extend(map.iter().map(|p| p.cast::<f32>()));
     let index = PointIndex::new(&s.cloud);
-    graphs.local_index.reserve(node_count * k);
-    graphs.local_theta.reserve(node_count * k * k);
+    index_out.reserve(node_count * k);
+    theta_out.reserve(node_count * k * k);
     for &seed in &s.seeds {
         let group = index.nearest(&s.cloud[seed], k);
         s.group_image.clear();
@@ -164,11 +198,10 @@ fn local_graph(
         s.group_image.extend(group.iter().map(|&i| image[i]));
         s.group_map.extend(group.iter().map(|&i| map[i]));
         params.pair_theta(&s.group_image, &s.group_map, &mut s.theta);
-        graphs.local_index.extend(group.iter().map(|&i| i as u32));
-        graphs.local_theta.extend_from_slice(&s.theta.values);
+        index_out.extend(group.iter().map(|&i| i as u32));
+        theta_out.extend_from_slice(&s.theta.values);
     }
-    graphs.nodes = s.seeds.len();
-    graphs.neighbours = k;
+    (s.seeds.len(), k)
 }
 
 /// Eq. (7) for every (correspondence, keypoint) pair, both clouds centred on the keypoints'
@@ -177,7 +210,7 @@ fn cross_angle_theta(
     image: &[Point3<f64>],
     map: &[Point3<f64>],
     sigma_d: f64,
-    s: &mut GraphScratch,
+    s: &mut KeyScratch,
     cross: &mut Vec<f32>,
 ) {
     let unit = |p: &Point3<f64>, c: &Point3<f64>| -> Vector3<f64> {
@@ -210,7 +243,7 @@ fn cross_angle_theta(
 fn cross_distance_theta(
     image: &[Point3<f64>],
     map: &[Point3<f64>],
-    s: &GraphScratch,
+    s: &KeyScratch,
     params: &GraphParams,
     cross: &mut Vec<f32>,
 ) {
