@@ -5,11 +5,13 @@
 //!   the points a candidate pose can see — within range, in the frustum, thinned evenly to its
 //!   point budget ([`render_map`]);
 //! * a search for the map points nearest to a point (the map point of a correspondence, and the
-//!   neighbourhood of its normal), with the normals themselves computed lazily and cached
-//!   ([`LazyNormals`]). On a map of a room it is one k-d tree over every point, built at load
-//!   beside the grid; on a map too large for one render budget ([`MapScale`]) it is the grid's
-//!   per-voxel trees, each built when a search first reaches it ([`VoxelGrid::nearest_k`]), so
-//!   loading a building's millions of points builds no tree over all of them.
+//!   neighbourhood of its normal), and the points' normals. On a map of a room it is one k-d
+//!   tree over every point, built at load beside the grid, and every normal is computed at load
+//!   too (a frame then only looks its points up); on a map too large for one render budget
+//!   ([`MapScale`]) it is the grid's per-voxel trees, each built when a search first reaches it
+//!   ([`VoxelGrid::nearest_k`]), and the normals are computed when a frame first needs them and
+//!   cached ([`LazyNormals`]), so loading a building's millions of points builds no tree over
+//!   all of them and solves none of their normals.
 //!
 //! Built in parallel (the tree and the grid on two threads, the grid's sort and gather with
 //! rayon), behind an `Arc`: one index serves every localizer (camera) that uses the map, and a
@@ -82,13 +84,22 @@ impl Default for IndexSettings {
     }
 }
 
+/// The map points' normals (the learned rejector's n^P).
+enum MapNormals {
+    /// Every point's, computed at load: a room (at most a few render budgets of points, so a
+    /// fraction of a second in parallel), whose frames would otherwise solve most of theirs.
+    Eager(Vec<Vector3<f32>>),
+    /// Computed when a frame first needs them, and kept: a building.
+    Lazy(LazyNormals),
+}
+
 /// The indexed map (see the module doc).
 pub struct MapIndex {
     points: Vec<Point3<f32>>,
     /// One k-d tree over every point ([`MapScale::Room`]; a building searches the grid).
     tree: Option<PointIndex>,
     scale: MapScale,
-    normals: LazyNormals,
+    normals: MapNormals,
     grid: VoxelGrid,
     /// Diagonal of the finite points' bounding box, metres (0 for fewer than two points).
     extent_m: f64,
@@ -103,7 +114,8 @@ impl MapIndex {
     }
 
     /// Indexes `points`: on a room-scale map the point tree and the voxel grid are built side
-    /// by side; a building-scale map gets the grid alone (its trees come per voxel, on use).
+    /// by side, then every point's normal; a building-scale map gets the grid alone (its trees
+    /// come per voxel, and its normals, on use).
     pub fn build(points: Vec<Point3<f32>>, settings: &IndexSettings) -> Self {
         let scale = if points.len() > settings.building_above_points { MapScale::Building } else { MapScale::Room };
         let (tree, grid, extent_m) = std::thread::scope(|s| {
@@ -115,7 +127,12 @@ impl MapIndex {
         });
         let normal_search_m =
             (scale == MapScale::Building).then(|| NORMAL_SEARCH_SPACINGS * point_spacing(&points, &grid));
-        Self { points, tree, scale, normals: LazyNormals::default(), grid, extent_m, normal_search_m }
+        let normals = MapNormals::Lazy(LazyNormals::default());
+        let mut index = Self { points, tree, scale, normals, grid, extent_m, normal_search_m };
+        if scale == MapScale::Room {
+            index.normals = MapNormals::Eager(index.eager_normals());
+        }
+        index
     }
 
     /// The map's points, in the order they were given.
@@ -180,11 +197,16 @@ impl MapIndex {
         // In parallel: on a building, the first searches near a place build its voxels' trees.
         let nearest: Vec<Option<usize>> = queries.par_iter().map(nearest_one).collect();
         let which: Vec<usize> = nearest.iter().flatten().copied().collect();
-        let mut normals = self.normals.get(self.search(), &self.points, NORMAL_NEIGHBOURS, &which).into_iter();
+        let normals = match &self.normals {
+            MapNormals::Eager(all) => which.iter().map(|&i| all.get(i).copied().unwrap_or_else(Vector3::zeros)).collect(),
+            MapNormals::Lazy(lazy) => lazy.get(self.search(), &self.points, NORMAL_NEIGHBOURS, &which),
+        };
+        let mut normals = normals.into_iter();
         nearest.iter().map(|n| n.and_then(|_| normals.next())).collect()
     }
 
-    /// The normal of every point, computed now (in parallel): what the lazy normals replace.
+    /// The normal of every point, computed now (in parallel): what a room keeps from load, and
+    /// what a building's lazy normals stand in for.
     pub fn eager_normals(&self) -> Vec<Vector3<f32>> {
         let search = self.search();
         self.points
@@ -193,9 +215,12 @@ impl MapIndex {
             .collect()
     }
 
-    /// Normals computed so far.
+    /// Normals computed so far (a room's: all of them, at load).
     pub fn cached_normals(&self) -> usize {
-        self.normals.cached()
+        match &self.normals {
+            MapNormals::Eager(all) => all.len(),
+            MapNormals::Lazy(lazy) => lazy.cached(),
+        }
     }
 
     /// The points a camera at `view` may see, thinned evenly to about `budget` ([`VoxelGrid::visible`]).

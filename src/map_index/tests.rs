@@ -102,18 +102,24 @@ fn a_budget_thins_every_voxel_evenly() {
 #[test]
 fn lazy_normals_equal_the_eager_ones_bit_for_bit() {
     let points = cloud(5_000);
-    let index = MapIndex::new(points.clone());
+    let room = MapIndex::new(points.clone());
     let eager = point_cloud_normals(&PointIndex::new(&points), &points, NORMAL_NEIGHBOURS);
-    assert_eq!(index.eager_normals(), eager);
+    assert_eq!(room.eager_normals(), eager);
+    assert_eq!(room.cached_normals(), points.len(), "a room's normals are all computed at load");
     let queries: Vec<Point3<f64>> = points.iter().step_by(7).map(|p| p.cast::<f64>()).collect();
-    let lazy = index.nearest_normals(&queries);
-    for (q, n) in queries.iter().zip(&lazy) {
-        let i = index.nearest(&q.cast()).unwrap();
+    let looked_up = room.nearest_normals(&queries);
+    for (q, n) in queries.iter().zip(&looked_up) {
+        let i = room.nearest(&q.cast()).unwrap();
         assert_eq!(n.unwrap(), eager[i]);
     }
-    assert_eq!(index.cached_normals(), queries.len(), "only what was asked for is computed");
-    // Asked again: served from the cache, same values.
-    assert_eq!(index.nearest_normals(&queries), lazy);
+    // A building computes only what is asked for, the same values, and serves them again
+    // from its cache.
+    let building = building(points.clone());
+    assert_eq!(building.cached_normals(), 0);
+    let lazy = building.nearest_normals(&queries);
+    assert_eq!(lazy, looked_up);
+    assert_eq!(building.cached_normals(), queries.len(), "only what was asked for is computed");
+    assert_eq!(building.nearest_normals(&queries), lazy);
     assert!(MapIndex::new(Vec::new()).nearest_normals(&queries).iter().all(Option::is_none));
 }
 
