@@ -75,6 +75,7 @@ pub fn solve_pnp_ransac(problem: &Problem, guidance: &Guidance, params: &PnpPara
         gate,
         best: None,
         iterations: 0,
+        pool_sprt: SprtCache::default(),
     };
     search.run();
     let pose = search.choice().ok_or(PnpError::NoConsensus { inliers: 0, required })?;
@@ -93,6 +94,26 @@ struct Search<'a> {
     best: Option<Hypothesis>,
     /// Minimal samples drawn.
     iterations: usize,
+    /// The SPRT of the pool's worst support (which changes far less often than it is asked).
+    pool_sprt: SprtCache,
+}
+
+/// The SPRT for the last support asked, kept until another is asked.
+#[derive(Default)]
+struct SprtCache {
+    support: Option<usize>,
+    sprt: Option<Sprt>,
+}
+
+impl SprtCache {
+    /// [`Sprt::new`] for a support ratio of `support` among `n`.
+    fn for_support(&mut self, support: usize, n: usize) -> Option<Sprt> {
+        if self.support != Some(support) {
+            self.support = Some(support);
+            self.sprt = Sprt::new(support as f64 / n as f64);
+        }
+        self.sprt
+    }
 }
 
 impl Search<'_> {
@@ -139,7 +160,10 @@ impl Search<'_> {
                 // With a pool, a hypothesis must beat the pool's worst, and SPRT assumes that
                 // one's support.
                 let (bound, sprt) = match &self.pool {
-                    Some(p) => (p.bound(), Sprt::new(p.bound().support as f64 / n as f64)),
+                    Some(p) => {
+                        let bound = p.bound();
+                        (bound, self.pool_sprt.for_support(bound.support, n))
+                    }
                     None => (best, self.termination.sprt),
                 };
                 let h = cov.cost(&ev.data, pose, bound, sprt, start)?;
