@@ -5,13 +5,14 @@
 //!   the points a candidate pose can see — within range, in the frustum, thinned evenly to its
 //!   point budget ([`render_map`]);
 //! * a search for the map points nearest to a point (the map point of a correspondence, and the
-//!   neighbourhood of its normal), and the points' normals. On a map of a room it is one k-d
-//!   tree over every point, built at load beside the grid, and every normal is computed at load
-//!   too (a frame then only looks its points up); on a map too large for one render budget
-//!   ([`MapScale`]) it is the grid's per-voxel trees, each built when a search first reaches it
-//!   ([`VoxelGrid::nearest_k`]), and the normals are computed when a frame first needs them and
-//!   cached ([`LazyNormals`]), so loading a building's millions of points builds no tree over
-//!   all of them and solves none of their normals.
+//!   neighbourhood of its normal), and the points' normals. On a map of up to
+//!   [`ONE_TREE_MAX_POINTS`] it is one k-d tree over every point, built at load beside the grid,
+//!   and every normal computed at load (a frame then only looks its points up); on a larger one
+//!   it is the grid's per-voxel trees, each built when a search first reaches it
+//!   ([`VoxelGrid::nearest_k`]), and a normal is computed when a frame first needs it and cached
+//!   ([`LazyNormals`]), so loading a building's millions of points builds no tree over all of
+//!   them and solves none of their normals. How far a correspondence looks for its normal
+//!   follows the map's [`MapScale`], not how it is searched.
 //!
 //! Built in parallel (the tree and the grid on two threads, the grid's sort and gather with
 //! rayon), behind an `Arc`: one index serves every localizer (camera) that uses the map, and a
@@ -46,6 +47,12 @@ pub const NORMAL_NEIGHBOURS: usize = 16;
 /// 30 cm apart) searches as far, in points, as a dense one (2 cm).
 pub const NORMAL_SEARCH_SPACINGS: f32 = 8.0;
 
+/// A map of at most this many points gets one k-d tree over all of them and every normal
+/// computed at load (a frame then only looks its points up); a larger one searches per-voxel
+/// trees built on first use and computes a normal when a frame first needs it ([`LazyNormals`]:
+/// at 5 M points all of them took ~38 s).
+pub const ONE_TREE_MAX_POINTS: usize = 1_000_000;
+
 /// How the map is bucketed for culling, and from what size it is treated as a building.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IndexSettings {
@@ -53,6 +60,9 @@ pub struct IndexSettings {
     pub voxel_m: f32,
     /// A map of more points than this is [`MapScale::Building`].
     pub building_above_points: usize,
+    /// A map of at most this many points gets one tree and its normals at load
+    /// ([`ONE_TREE_MAX_POINTS`]).
+    pub one_tree_max_points: usize,
 }
 
 impl IndexSettings {
@@ -62,19 +72,21 @@ impl IndexSettings {
         Self {
             voxel_m: params.render_voxel_m as f32,
             building_above_points: params.max_map_points.saturating_mul(params.cull_above_budgets),
+            one_tree_max_points: ONE_TREE_MAX_POINTS,
         }
     }
 }
 
-/// How a map is indexed and rendered, from its size against the render budget.
+/// How a map is rendered and how far its normals are looked for, from its size against the
+/// render budget (how it is searched follows [`ONE_TREE_MAX_POINTS`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MapScale {
-    /// A map a render budget covers well (a room): one k-d tree over every point, normals
-    /// looked up without bound, verification renders an even subsample of the whole map.
+    /// A map a render budget covers well (a room): normals looked up without bound,
+    /// verification renders an even subsample of the whole map.
     Room,
-    /// A map of many render budgets (a building): per-voxel trees built on first use, normals
-    /// looked up within [`NORMAL_SEARCH_SPACINGS`] point spacings, verification renders the
-    /// points in view at each candidate pose.
+    /// A map of many render budgets (a building): normals looked up within
+    /// [`NORMAL_SEARCH_SPACINGS`] point spacings, verification renders the points in view at
+    /// each candidate pose.
     Building,
 }
 
@@ -86,10 +98,10 @@ impl Default for IndexSettings {
 
 /// The map points' normals (the learned rejector's n^P).
 enum MapNormals {
-    /// Every point's, computed at load: a room (at most a few render budgets of points, so a
-    /// fraction of a second in parallel), whose frames would otherwise solve most of theirs.
+    /// Every point's, computed at load (a map of at most [`ONE_TREE_MAX_POINTS`]), as its
+    /// frames would otherwise solve most of theirs anew.
     Eager(Vec<Vector3<f32>>),
-    /// Computed when a frame first needs them, and kept: a building.
+    /// Computed when a frame first needs them, and kept: a larger map.
     Lazy(LazyNormals),
 }
 
@@ -113,15 +125,15 @@ impl MapIndex {
         Self::build(points, &IndexSettings::default())
     }
 
-    /// Indexes `points`: on a room-scale map the point tree and the voxel grid are built side
-    /// by side, then every point's normal; a building-scale map gets the grid alone (its trees
-    /// come per voxel, and its normals, on use).
+    /// Indexes `points`: a map of up to [`ONE_TREE_MAX_POINTS`] gets the point tree beside the
+    /// voxel grid, then every normal; a larger one the grid alone (its trees come per voxel, and
+    /// its normals, on use).
     pub fn build(points: Vec<Point3<f32>>, settings: &IndexSettings) -> Self {
         let scale = if points.len() > settings.building_above_points { MapScale::Building } else { MapScale::Room };
         let (tree, grid, extent_m) = std::thread::scope(|s| {
             let grid = s.spawn(|| VoxelGrid::new(&points, settings.voxel_m));
             let extent = bounding_diagonal(&points);
-            let tree = (scale == MapScale::Room).then(|| PointIndex::new(&points));
+            let tree = (points.len() <= settings.one_tree_max_points).then(|| PointIndex::new(&points));
             // A panicking grid build (it cannot, short of a bug) leaves an empty grid.
             (tree, grid.join().unwrap_or_default(), extent)
         });
@@ -129,7 +141,7 @@ impl MapIndex {
             (scale == MapScale::Building).then(|| NORMAL_SEARCH_SPACINGS * point_spacing(&points, &grid));
         let normals = MapNormals::Lazy(LazyNormals::default());
         let mut index = Self { points, tree, scale, normals, grid, extent_m, normal_search_m };
-        if scale == MapScale::Room {
+        if index.tree.is_some() {
             index.normals = MapNormals::Eager(index.eager_normals());
         }
         index

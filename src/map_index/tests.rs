@@ -112,9 +112,9 @@ fn lazy_normals_equal_the_eager_ones_bit_for_bit() {
         let i = room.nearest(&q.cast()).unwrap();
         assert_eq!(n.unwrap(), eager[i]);
     }
-    // A building computes only what is asked for, the same values, and serves them again
-    // from its cache.
-    let building = building(points.clone());
+    // A map too large to compute them all at load computes only what is asked for, the same
+    // values, and serves them again from its cache.
+    let building = lazy_building(points.clone());
     assert_eq!(building.cached_normals(), 0);
     let lazy = building.nearest_normals(&queries);
     assert_eq!(lazy, looked_up);
@@ -126,6 +126,13 @@ fn lazy_normals_equal_the_eager_ones_bit_for_bit() {
 /// Indexed as a building whatever its size.
 fn building(points: Vec<Point3<f32>>) -> MapIndex {
     MapIndex::build(points, &IndexSettings { building_above_points: 0, ..IndexSettings::default() })
+}
+
+/// A building searched by per-voxel trees, whose normals are computed when first asked for (as
+/// a map too large for one tree).
+fn lazy_building(points: Vec<Point3<f32>>) -> MapIndex {
+    let settings = IndexSettings { building_above_points: 0, one_tree_max_points: 0, ..IndexSettings::default() };
+    MapIndex::build(points, &settings)
 }
 
 #[test]
@@ -144,7 +151,8 @@ fn the_per_voxel_search_finds_what_one_tree_over_the_map_finds() {
     let whole = PointIndex::new(&points);
     // Small voxels (many of them, most neighbourhoods crossing faces) and large ones.
     for voxel_m in [0.7, 3.0] {
-        let index = MapIndex::build(points.clone(), &IndexSettings { voxel_m, building_above_points: 0 });
+        let settings = IndexSettings { voxel_m, building_above_points: 0, one_tree_max_points: 0 };
+        let index = MapIndex::build(points.clone(), &settings);
         assert!(index.tree.is_none(), "a building builds no tree over every point");
         let on_map = points.iter().step_by(97).copied();
         let off_map = [Point3::new(20.0, 15.0, 1.5), Point3::new(-30.0, 90.0, 40.0), Point3::new(40.0, 30.0, 3.0)];
@@ -167,7 +175,7 @@ fn the_per_voxel_search_finds_what_one_tree_over_the_map_finds() {
 fn a_buildings_lazy_normals_are_the_rooms() {
     let points = cloud(5_000);
     let room = MapIndex::new(points.clone());
-    let building = building(points.clone());
+    let building = lazy_building(points.clone());
     assert_eq!(building.eager_normals(), room.eager_normals());
     let queries: Vec<Point3<f64>> = points.iter().step_by(11).map(|p| p.cast::<f64>()).collect();
     assert_eq!(building.nearest_normals(&queries), room.nearest_normals(&queries));
@@ -242,7 +250,7 @@ fn the_voxel_of_a_coordinate_is_its_floor() {
 
 #[test]
 fn a_buildings_voxel_trees_can_be_built_ahead_of_the_frames() {
-    let index = building(cloud(20_000));
+    let index = lazy_building(cloud(20_000));
     assert_eq!(index.grid().built_trees(), 0, "loading builds none");
     index.nearest_normals(&[Point3::new(20.0, 15.0, 0.0)]);
     let after_a_search = index.grid().built_trees();
