@@ -162,6 +162,7 @@ impl LocalizerParams {
             });
         }
         real("final_refine.loss_scale_px", f.loss_scale_px, Range::Positive)?;
+        at_least("final_refine.rounds", f.rounds as u64, 1, "at least 1")?;
         let c = &self.cascade;
         at_least("cascade.max_iterations", c.max_iterations as u64, 1, "at least 1")?;
         at_least("cascade.probe_iterations", c.probe_iterations as u64, 1, "at least 1")?;

@@ -24,6 +24,10 @@ pub struct FinalRefine {
     pub loss: RobustLoss,
     pub loss_scale_px: f64,
     pub max_iterations: usize,
+    /// Gather-and-refine rounds: each refined pose gathers the agreeing correspondences again,
+    /// while their number grows (a pose found on a subset that misses part of the true matches
+    /// recruits them as it sharpens); 1: one gathering.
+    pub rounds: usize,
 }
 
 impl Default for FinalRefine {
@@ -36,6 +40,7 @@ impl Default for FinalRefine {
             loss: RobustLoss::Trivial,
             loss_scale_px: 4.0,
             max_iterations: 20,
+            rounds: 4,
         }
     }
 }
@@ -57,7 +62,33 @@ impl FinalRefine {
         min_count: usize,
         solution: &mut PnpSolution,
     ) {
-        let to_cam = solution.pose.inverse();
+        let mut gathered = 0;
+        for _ in 0..self.rounds.max(1) {
+            let Some(agreeing) = self.agreeing(k, correspondences, inlier_threshold_px, pixel_scale, &solution.pose)
+            else {
+                return;
+            };
+            if agreeing.len() < min_count || agreeing.len() <= gathered {
+                return;
+            }
+            gathered = agreeing.len();
+            if !self.refine_on(k, &agreeing, solution) {
+                return;
+            }
+        }
+    }
+
+    /// The correspondences within the adaptive tolerance of `pose` (`None` when fewer than
+    /// three are within PnP's threshold to measure the noise on).
+    fn agreeing<'c>(
+        &self,
+        k: &Intrinsics,
+        correspondences: &'c [Correspondence],
+        inlier_threshold_px: f64,
+        pixel_scale: f64,
+        pose: &nalgebra::Isometry3<f64>,
+    ) -> Option<Vec<&'c Correspondence>> {
+        let to_cam = pose.inverse();
         let residuals: Vec<f64> = correspondences
             .iter()
             .map(|c| {
@@ -66,30 +97,30 @@ impl FinalRefine {
             })
             .collect();
         let mut inlier_residuals: Vec<f64> = residuals.iter().copied().filter(|r| *r < inlier_threshold_px).collect();
-        if inlier_residuals.len() < min_count {
-            return;
+        if inlier_residuals.len() < 3 {
+            return None;
         }
         let mid = inlier_residuals.len() / 2;
         let (_, median, _) = inlier_residuals.select_nth_unstable_by(mid, f64::total_cmp);
         let sigma = *median / RAYLEIGH_MEDIAN;
         let (lo, hi) = (self.min_threshold_px * pixel_scale, self.max_threshold_px * pixel_scale);
         let threshold = (self.noise_multiple * sigma).max(lo).min(hi);
-        let agreeing: Vec<&Correspondence> =
-            correspondences.iter().zip(&residuals).filter(|(_, &r)| r < threshold).map(|(c, _)| c).collect();
-        if agreeing.len() < min_count {
-            return;
-        }
+        Some(correspondences.iter().zip(&residuals).filter(|(_, &r)| r < threshold).map(|(c, _)| c).collect())
+    }
+
+    /// LM on `agreeing` from `solution`'s pose, into it; whether it succeeded.
+    fn refine_on(&self, k: &Intrinsics, agreeing: &[&Correspondence], solution: &mut PnpSolution) -> bool {
         let pixels: Vec<_> = agreeing.iter().map(|c| c.pixel).collect();
         let points: Vec<_> = agreeing.iter().map(|c| c.point).collect();
         let options =
             RefineOptions { max_iterations: self.max_iterations, loss: self.loss, loss_scale_px: self.loss_scale_px };
-        if let Ok(refined) = refine_pose(k, &pixels, &points, &solution.pose, &options) {
-            if let Ok(cov) = pose_covariance(k, &pixels, &points, &refined.pose) {
-                solution.covariance = cov;
-            }
-            solution.pose = refined.pose;
-            solution.rmse_px = refined.rmse_px;
+        let Ok(refined) = refine_pose(k, &pixels, &points, &solution.pose, &options) else { return false };
+        if let Ok(cov) = pose_covariance(k, &pixels, &points, &refined.pose) {
+            solution.covariance = cov;
         }
+        solution.pose = refined.pose;
+        solution.rmse_px = refined.rmse_px;
+        true
     }
 }
 
@@ -152,6 +183,35 @@ mod tests {
             let with_outliers = rotation_error_deg(&everything.pose, &truth);
             assert!(refined < 0.2, "seed {seed}: {refined}° off");
             assert!(refined < with_outliers, "seed {seed}: {refined}° vs {with_outliers}° with the outliers in");
+        }
+    }
+
+    #[test]
+    fn a_pose_found_on_part_of_the_matches_recruits_the_rest_round_by_round() {
+        // A pose 1 cm off sideways (as PnP on a kept set that lost part of the true matches can
+        // leave it): at 0.4–0.9 m the near matches are 6–14 px off and the far ones 3–6 px, so
+        // one gathering takes the far ones only and LM on them leaves a tilt; later rounds, each
+        // from the sharper pose, take the near ones in.
+        let one = FinalRefine { rounds: 1, ..FinalRefine::default() };
+        let rounds = FinalRefine::default();
+        for seed in 1..9 {
+            let (k, truth, corrs) = frame(seed);
+            let start = truth * Translation3::new(0.009, -0.006, 0.0);
+            let solve = |refine: &FinalRefine| {
+                let mut solution = PnpSolution {
+                    pose: start,
+                    inliers: vec![true; corrs.len()],
+                    num_inliers: corrs.len(),
+                    iterations: 0,
+                    rmse_px: 0.0,
+                    covariance: Matrix6::identity(),
+                };
+                refine.apply(&k, &corrs, 8.0, 1.0, 6, &mut solution);
+                rotation_error_deg(&solution.pose, &truth)
+            };
+            let (after_one, after_rounds) = (solve(&one), solve(&rounds));
+            assert!(after_rounds < 0.05, "seed {seed}: {after_rounds}° off after the rounds");
+            assert!(after_rounds < 0.5 * after_one, "seed {seed}: {after_rounds}° vs {after_one}° after one gathering");
         }
     }
 }
