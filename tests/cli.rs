@@ -94,6 +94,41 @@ fn shipped_bags_replay() {
     }
 }
 
+/// On a one-thread rayon pool (a one-CPU machine or container, or `RAYON_NUM_THREADS=1`) replay
+/// still finishes: the thread that localizes is the pool's only one, and nothing it waits on may
+/// need the pool (indexing the map once deadlocked there).
+#[test]
+fn replay_finishes_on_a_one_thread_pool() {
+    let dir = tempfile::tempdir().unwrap();
+    let method = if onnx_runtime().is_some() { "angle-i2p" } else { "consistency" };
+    let mut child = Command::new(binary())
+        .arg("replay")
+        .arg(manifest().join("bags/synth-hard"))
+        .arg("--out")
+        .arg(dir.path().join("out"))
+        .args(["--method", method])
+        .env("RAYON_NUM_THREADS", "1")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // A guard against a hang, not a speed check: the replay takes about a second.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if std::time::Instant::now() > deadline {
+            child.kill().ok();
+            panic!("replay on a one-thread pool did not finish in 120 s (deadlock)");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    let mut text = String::new();
+    std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut text).unwrap();
+    assert!(status.success() && text.contains("20 frames, 20 with a pose"), "{text}");
+}
+
 #[test]
 fn corrupt_input_gives_an_error_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();

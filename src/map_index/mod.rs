@@ -14,8 +14,8 @@
 //!   them and solves none of their normals. How far a correspondence looks for its normal
 //!   follows the map's [`MapScale`], not how it is searched.
 //!
-//! Built in parallel (the tree and the grid on two threads, the grid's sort and gather with
-//! rayon), behind an `Arc`: one index serves every localizer (camera) that uses the map, and a
+//! Built in parallel (the tree and the grid side by side, the grid's sort and gather, all on
+//! rayon's pool), behind an `Arc`: one index serves every localizer (camera) that uses the map, and a
 //! new map can be indexed on another thread while frames go on against the old one ([`swap`]).
 
 mod normals;
@@ -130,13 +130,16 @@ impl MapIndex {
     /// its normals, on use).
     pub fn build(points: Vec<Point3<f32>>, settings: &IndexSettings) -> Self {
         let scale = if points.len() > settings.building_above_points { MapScale::Building } else { MapScale::Room };
-        let (tree, grid, extent_m) = std::thread::scope(|s| {
-            let grid = s.spawn(|| VoxelGrid::new(&points, settings.voxel_m));
-            let extent = bounding_diagonal(&points);
-            let tree = (points.len() <= settings.one_tree_max_points).then(|| PointIndex::new(&points));
-            // A panicking grid build (it cannot, short of a bug) leaves an empty grid.
-            (tree, grid.join().unwrap_or_default(), extent)
-        });
+        // Side by side on rayon's pool, not on a thread of its own: a pool thread waiting on
+        // another thread that needs the pool (the grid's parallel sort) would wait forever on
+        // a one-thread pool (one CPU, or RAYON_NUM_THREADS=1).
+        let ((tree, extent_m), grid) = rayon::join(
+            || {
+                let tree = (points.len() <= settings.one_tree_max_points).then(|| PointIndex::new(&points));
+                (tree, bounding_diagonal(&points))
+            },
+            || VoxelGrid::new(&points, settings.voxel_m),
+        );
         let normal_search_m =
             (scale == MapScale::Building).then(|| NORMAL_SEARCH_SPACINGS * point_spacing(&points, &grid));
         let normals = MapNormals::Lazy(LazyNormals::default());
