@@ -213,7 +213,9 @@ impl MapIndex {
         let nearest: Vec<Option<usize>> = queries.par_iter().map(nearest_one).collect();
         let which: Vec<usize> = nearest.iter().flatten().copied().collect();
         let normals = match &self.normals {
-            MapNormals::Eager(all) => which.iter().map(|&i| all.get(i).copied().unwrap_or_else(Vector3::zeros)).collect(),
+            MapNormals::Eager(all) => {
+                which.iter().map(|&i| all.get(i).copied().unwrap_or_else(Vector3::zeros)).collect()
+            }
             MapNormals::Lazy(lazy) => lazy.get(self.search(), &self.points, NORMAL_NEIGHBOURS, &which),
         };
         let mut normals = normals.into_iter();

@@ -46,7 +46,8 @@ async fn localize(localizer: Localizer, maps: MapTaker, frame: Frame) -> Result<
         }
         // The frame runs on one of rayon's threads, so its parallel parts start there rather
         // than each waiting for a pool thread to wake.
-        let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| rayon::scope(|_| localizer.process(&frame))));
+        let out =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| rayon::scope(|_| localizer.process(&frame))));
         out.map(|localization| Localized { localizer, maps, frame, localization })
     });
     match handle.await {

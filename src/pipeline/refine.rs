@@ -156,6 +156,26 @@ mod tests {
         a.rotation.angle_to(&b.rotation).to_degrees()
     }
 
+    /// `refine` applied from `start` (PnP's threshold 8 px, 6 correspondences at least): the
+    /// refined pose.
+    fn refined(
+        refine: &FinalRefine,
+        k: &Intrinsics,
+        corrs: &[Correspondence],
+        start: Isometry3<f64>,
+    ) -> Isometry3<f64> {
+        let mut solution = PnpSolution {
+            pose: start,
+            inliers: vec![true; corrs.len()],
+            num_inliers: corrs.len(),
+            iterations: 0,
+            rmse_px: 0.0,
+            covariance: Matrix6::identity(),
+        };
+        refine.apply(k, corrs, 8.0, 1.0, 6, &mut solution);
+        solution.pose
+    }
+
     #[test]
     fn the_tolerance_follows_the_frames_noise_and_leaves_outliers_out_at_close_range() {
         let refine = FinalRefine::default();
@@ -166,23 +186,12 @@ mod tests {
                     Translation3::new(0.004, 0.0, -0.003),
                     UnitQuaternion::from_euler_angles(0.004, -0.003, 0.002),
                 );
-            let mut solution = PnpSolution {
-                pose: start,
-                inliers: vec![true; corrs.len()],
-                num_inliers: corrs.len(),
-                iterations: 0,
-                rmse_px: 0.0,
-                covariance: Matrix6::identity(),
-            };
-            refine.apply(&k, &corrs, 8.0, 1.0, 6, &mut solution);
-            let refined = rotation_error_deg(&solution.pose, &truth);
+            let error = rotation_error_deg(&refined(&refine, &k, &corrs, start), &truth);
             // A metric tolerance (3 cm at 0.5 m is ~37 px here) would take every outlier in.
-            let mut everything = PnpSolution { pose: start, ..solution.clone() };
             let all = FinalRefine { min_threshold_px: 40.0, max_threshold_px: 40.0, ..FinalRefine::default() };
-            all.apply(&k, &corrs, 8.0, 1.0, 6, &mut everything);
-            let with_outliers = rotation_error_deg(&everything.pose, &truth);
-            assert!(refined < 0.2, "seed {seed}: {refined}° off");
-            assert!(refined < with_outliers, "seed {seed}: {refined}° vs {with_outliers}° with the outliers in");
+            let with_outliers = rotation_error_deg(&refined(&all, &k, &corrs, start), &truth);
+            assert!(error < 0.2, "seed {seed}: {error}° off");
+            assert!(error < with_outliers, "seed {seed}: {error}° vs {with_outliers}° with the outliers in");
         }
     }
 
@@ -197,18 +206,7 @@ mod tests {
         for seed in 1..9 {
             let (k, truth, corrs) = frame(seed);
             let start = truth * Translation3::new(0.009, -0.006, 0.0);
-            let solve = |refine: &FinalRefine| {
-                let mut solution = PnpSolution {
-                    pose: start,
-                    inliers: vec![true; corrs.len()],
-                    num_inliers: corrs.len(),
-                    iterations: 0,
-                    rmse_px: 0.0,
-                    covariance: Matrix6::identity(),
-                };
-                refine.apply(&k, &corrs, 8.0, 1.0, 6, &mut solution);
-                rotation_error_deg(&solution.pose, &truth)
-            };
+            let solve = |refine: &FinalRefine| rotation_error_deg(&refined(refine, &k, &corrs, start), &truth);
             let (after_one, after_rounds) = (solve(&one), solve(&rounds));
             assert!(after_rounds < 0.05, "seed {seed}: {after_rounds}° off after the rounds");
             assert!(after_rounds < 0.5 * after_one, "seed {seed}: {after_rounds}° vs {after_one}° after one gathering");
