@@ -108,7 +108,8 @@ enum MapNormals {
 /// The indexed map (see the module doc).
 pub struct MapIndex {
     points: Vec<Point3<f32>>,
-    /// One k-d tree over every point ([`MapScale::Room`]; a building searches the grid).
+    /// One k-d tree over every point (a map of up to [`ONE_TREE_MAX_POINTS`]; a larger one
+    /// searches the grid's per-voxel trees).
     tree: Option<PointIndex>,
     scale: MapScale,
     normals: MapNormals,
@@ -161,6 +162,12 @@ impl MapIndex {
 
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
+    }
+
+    /// Whether searches go through the grid's per-voxel trees (built on first use, or ahead of
+    /// the frames by [`VoxelGrid::build_trees_while`]): a map with no tree over every point.
+    pub fn searches_per_voxel(&self) -> bool {
+        self.tree.is_none()
     }
 
     /// How the map is indexed and rendered.

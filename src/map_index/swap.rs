@@ -8,7 +8,7 @@ use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use super::{IndexSettings, MapIndex, MapScale};
+use super::{IndexSettings, MapIndex};
 use crate::frame::MapCloud;
 
 /// The node's map index, shared by its workers: the newest index built, and the maps being
@@ -74,8 +74,8 @@ impl MapSwap {
             if let Some(index) = &index {
                 on_built(index, started.elapsed());
             }
-            // Kept here only for a building, whose trees this thread goes on building.
-            let keep = index.as_ref().filter(|i| i.scale() == MapScale::Building).map(Arc::clone);
+            // Kept here only for a map searched per voxel, whose trees this thread goes on building.
+            let keep = index.as_ref().filter(|i| i.searches_per_voxel()).map(Arc::clone);
             swap.finished(number, index);
             if let Some(index) = keep {
                 // The frames go on meanwhile; the per-voxel trees their searches would build are
@@ -145,7 +145,7 @@ impl BackgroundIndex {
             let index = Arc::new(MapIndex::build(map.points.clone(), &settings));
             // The receiver is gone when a newer map replaced this one: nothing to do.
             let _ = send.send(IndexedCloud { map, index: Arc::clone(&index) });
-            if index.scale() == MapScale::Building {
+            if index.searches_per_voxel() {
                 index.grid().build_trees_while(|| Arc::strong_count(&index) > 1);
             }
         });

@@ -106,6 +106,7 @@ fn lazy_normals_equal_the_eager_ones_bit_for_bit() {
     let eager = point_cloud_normals(&PointIndex::new(&points), &points, NORMAL_NEIGHBOURS);
     assert_eq!(room.eager_normals(), eager);
     assert_eq!(room.cached_normals(), points.len(), "a room's normals are all computed at load");
+    assert!(!room.searches_per_voxel(), "one tree over every point: no voxel trees to build ahead");
     let queries: Vec<Point3<f64>> = points.iter().step_by(7).map(|p| p.cast::<f64>()).collect();
     let looked_up = room.nearest_normals(&queries);
     for (q, n) in queries.iter().zip(&looked_up) {
@@ -115,6 +116,7 @@ fn lazy_normals_equal_the_eager_ones_bit_for_bit() {
     // A map too large to compute them all at load computes only what is asked for, the same
     // values, and serves them again from its cache.
     let building = lazy_building(points.clone());
+    assert!(building.searches_per_voxel());
     assert_eq!(building.cached_normals(), 0);
     let lazy = building.nearest_normals(&queries);
     assert_eq!(lazy, looked_up);
