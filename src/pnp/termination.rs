@@ -13,6 +13,16 @@ use super::PnpParams;
 const NONRANDOM_BETA: f64 = 0.05;
 const NONRANDOM_Z: f64 = 3.0;
 
+/// The verifier's early check (the best hypothesis alone, where plain RANSAC stops) waits until
+/// uniform sampling would have found a larger consensus than the best's, at most this share of
+/// the verifier's `min_iterations`. PROSAC stops on its best-ranked prefix; when that prefix is
+/// mostly one wrong cluster (a pose degrees off that explains part of the true matches and a
+/// few wrong ones) its hypothesis explains a minority of the kept set, and a prior agrees with a
+/// slightly wrong pose often enough to accept it. Drawing on grows the prefix to the true
+/// matches; a frame still unsure after half the verifier's minimum is left to the pool's
+/// verification (a floor of the whole minimum delayed extreme frames the early check settles).
+const EARLY_FLOOR_SHARE: f64 = 0.5;
+
 /// The stopping state of one solve, and the SPRT the scorer uses meanwhile.
 pub(crate) struct Termination {
     /// PnP's own sampling limits.
@@ -27,6 +37,8 @@ pub(crate) struct Termination {
     pub sprt: Option<Sprt>,
     /// Samples plain RANSAC needs.
     needed: f64,
+    /// Samples drawn at least before the verifier's early check (see [`Termination::should_stop`]).
+    early_floor: f64,
     /// Scratch: inlier flag per position.
     flags: Vec<bool>,
     schedule: Schedule,
@@ -61,6 +73,7 @@ impl Termination {
             min_inliers: params.min_inliers,
             sprt: Sprt::new(0.0),
             needed: f64::INFINITY,
+            early_floor: f64::INFINITY,
             flags: vec![false; n],
             schedule: Schedule::default(),
         }
@@ -84,8 +97,10 @@ impl Termination {
         let accept = p.verification.accept;
         let schedule = &mut self.schedule;
         // There the best hypothesis alone is verified first: an easy frame stops there, and so
-        // does one whose prior does not confirm it but whose geometry is unambiguous.
-        if plain_done && !schedule.early_checked {
+        // does one whose prior does not confirm it but whose geometry is unambiguous. Not before
+        // the early floor, though (see `EARLY_FLOOR_SHARE`).
+        let floor_done = (iterations as f64) >= self.early_floor;
+        if plain_done && floor_done && !schedule.early_checked {
             schedule.early_checked = true;
             if p.verify_best(evaluator) >= accept {
                 schedule.early_accepted = true;
@@ -111,6 +126,8 @@ impl Termination {
         let eps = best.support as f64 / data.len() as f64;
         self.sprt = Sprt::new(eps);
         let keep = Sprt::keep_probability();
+        let uniform = samples_needed(best.inliers as f64 / data.len() as f64, self.confidence, keep);
+        self.early_floor = uniform.min(self.loop_min as f64 * EARLY_FLOOR_SHARE);
         self.needed = match sampler.pos_of_rank() {
             None => samples_needed(eps, self.confidence, keep),
             Some(map) => {

@@ -128,3 +128,43 @@ fn an_unreliable_prior_leaves_a_clear_frame_to_geometry() {
     assert!(sampled.iterations >= 1000, "{} hypotheses", sampled.iterations);
     assert!(pose_error(&sampled.pose, &pose).0 < 0.01);
 }
+
+/// A verifier that agrees with every pose in this share (a prior that cannot tell a pose a few
+/// degrees off from the true one).
+struct AgreesWithAll(f64);
+
+impl PoseVerifier for AgreesWithAll {
+    fn verify(&self, _: &Isometry3<f64>) -> Agreement {
+        Agreement { agreeing: (self.0 * 1000.0).round() as usize, in_view: 1000, cells: 1000 }
+    }
+}
+
+/// The network ranks a wrong cluster first and the true matches after it: PROSAC's top-ranked
+/// prefix is the cluster, plain RANSAC's rule stops on it within the first hundred samples and a
+/// prior that agrees with any pose would accept it there. The early check waits until uniform
+/// sampling would have found a larger consensus (at most half the verifier's minimum), by when
+/// the prefix holds the true matches and their pose leads.
+#[test]
+fn the_early_check_waits_for_the_prefix_to_grow() {
+    for seed in 0..8 {
+        let mut rng = WyRand::new(100 + seed);
+        let pose = random_pose(&mut rng);
+        let wrong = random_pose(&mut rng);
+        let (mut px, mut pw) = visible(&mut rng, &wrong, 14, 0.3);
+        let (true_px, true_pw) = visible(&mut rng, &pose, 40, 0.5);
+        px.extend(true_px);
+        pw.extend(true_pw);
+        let (random_px, random_pw) = random_pixel_matches(&mut rng, &pose, 20);
+        px.extend(random_px);
+        pw.extend(random_pw);
+        // Scores fall with the index: the wrong cluster, then the true matches, then noise.
+        let scores: Vec<f32> = (0..px.len()).map(|i| 1.0 - i as f32 / px.len() as f32).collect();
+        let verifier = AgreesWithAll(0.75);
+        let verification = crate::verify::VerifyParams::default().verification(&verifier);
+        let guidance = Guidance { scores: Some(&scores), verification: Some(verification), ..Guidance::default() };
+        let solved = ransac_guided(&k(), &px, &pw, &guidance, &PnpParams::default(), seed).expect("a pose");
+        let (rot, trans) = pose_error(&solved.pose, &pose);
+        assert!(rot < 0.01 && trans < 0.1, "seed {seed}: {rot} rad, {trans} m off");
+        assert!(solved.iterations <= 500, "seed {seed}: settled early, {} hypotheses", solved.iterations);
+    }
+}
