@@ -151,6 +151,7 @@ impl LocalizerParams {
         real("verify.render_voxel_m", v.render_voxel_m, Range::Positive)?;
         real("verify.tolerance", v.tolerance, Range::Positive)?;
         real("verify.coverage_weight", v.coverage_weight, Range::NonNegative)?;
+        real("verify.min_support_share", v.min_support_share, Range::Unit)?;
         real("final_refine.noise_multiple", f.noise_multiple, Range::Positive)?;
         real("final_refine.min_threshold_px", f.min_threshold_px, Range::NonNegative)?;
         real("final_refine.max_threshold_px", f.max_threshold_px, Range::Positive)?;
@@ -163,6 +164,13 @@ impl LocalizerParams {
         }
         real("final_refine.loss_scale_px", f.loss_scale_px, Range::Positive)?;
         at_least("final_refine.rounds", f.rounds as u64, 1, "at least 1")?;
+        if !(f.switch_margin >= 1.0 && f.switch_margin.is_finite()) {
+            return Err(InvalidParam {
+                key: "final_refine.switch_margin",
+                value: f.switch_margin.to_string(),
+                range: "finite, at least 1",
+            });
+        }
         let c = &self.cascade;
         at_least("cascade.max_iterations", c.max_iterations as u64, 1, "at least 1")?;
         at_least("cascade.probe_iterations", c.probe_iterations as u64, 1, "at least 1")?;
@@ -220,6 +228,9 @@ mod tests {
             ("pnp.confidence", Box::new(|p| p.localizer.pnp.confidence = 2.0)),
             ("pnp.max_iterations", Box::new(|p| p.localizer.pnp.max_iterations = 0)),
             ("network.tau", Box::new(|p| p.localizer.network.tau = 1.5)),
+            ("verify.min_support_share", Box::new(|p| p.localizer.verify.min_support_share = 1.5)),
+            ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = 0.5)),
+            ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = f64::INFINITY)),
             ("spectral.keep_ratio", Box::new(|p| p.localizer.spectral.keep_ratio = 5.0)),
             ("verify.accept", Box::new(|p| p.localizer.verify.accept = 2.0)),
             ("network.neighbours", Box::new(|p| p.localizer.network.graph.neighbours = 0)),

@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::{Isometry3, Matrix6, Point2, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::consistency::ScaleShift;
@@ -14,6 +14,7 @@ use crate::reject::{FrameGeometry, RejectError, Rejector, SpectralRejector};
 use crate::verify::{PriorVerifier, RenderMap};
 use scratch::FrameScratch;
 
+mod arbiter;
 mod cascade;
 mod params;
 mod refine;
@@ -309,6 +310,7 @@ impl Localizer {
             Ok(mut solution) => {
                 if rejection.is_some() && self.params.final_refine.enabled {
                     self.refine_on_all(frame, &mut solution);
+                    self.arbitrate_on_all(frame, &mut solution);
                 }
                 out.kept = match rejection {
                     Some(r) => with_scores(r),
@@ -395,6 +397,38 @@ impl Localizer {
             min_count,
             solution,
         );
+    }
+
+    /// The pool's first `final_refine.alternatives` other candidates, each refined on every
+    /// correspondence as the chosen pose was ([`arbiter`]): one whose support covers more than
+    /// `final_refine.switch_margin` times the chosen pose's cells replaces it.
+    fn arbitrate_on_all(&self, frame: &Frame, solution: &mut PnpSolution) {
+        let refine = &self.params.final_refine;
+        let pnp = self.pnp_params(frame);
+        let support = |pairs: &mut dyn Iterator<Item = (Point2<f64>, Point3<f64>)>, pose: &Isometry3<f64>| {
+            arbiter::support(&frame.intrinsics, pairs, pose, pnp.threshold_px, pnp.coverage_cell_px)
+        };
+        let all = || frame.correspondences.iter().map(|c| (c.pixel, c.point));
+        let mut best = support(&mut all(), &solution.pose);
+        let mut switched = false;
+        for start in std::mem::take(&mut solution.alternatives).into_iter().take(refine.alternatives) {
+            let mut candidate = PnpSolution { pose: start, ..solution.clone() };
+            self.refine_on_all(frame, &mut candidate);
+            let candidate_support = support(&mut all(), &candidate.pose);
+            if candidate_support.cells as f64 > refine.switch_margin * best.cells as f64 {
+                (best, *solution, switched) = (candidate_support, candidate, true);
+            }
+        }
+        if switched {
+            // PnP's inliers are the new pose's among the correspondences PnP saw.
+            let to_cam = solution.pose.inverse();
+            let scratch = &self.scratch;
+            for ((flag, pixel), point) in solution.inliers.iter_mut().zip(&scratch.pixels).zip(&scratch.points) {
+                let projected = frame.intrinsics.project(&to_cam.transform_point(point));
+                *flag = projected.is_some_and(|px| (px - pixel).norm() < pnp.threshold_px);
+            }
+            solution.num_inliers = solution.inliers.iter().filter(|&&f| f).count();
+        }
     }
 
     fn validate(&self, frame: &Frame) -> Result<(), Failure> {

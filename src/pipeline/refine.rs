@@ -28,6 +28,12 @@ pub struct FinalRefine {
     /// while their number grows (a pose found on a subset that misses part of the true matches
     /// recruits them as it sharpens); 1: one gathering.
     pub rounds: usize,
+    /// After the rejection-guided PnP, its verifier's first this many other candidates are
+    /// refined on every correspondence too, and one whose support there covers more than
+    /// `switch_margin` times the chosen pose's image cells replaces it (the matches rejection
+    /// left out settle what the kept ones could not); 0: off.
+    pub alternatives: usize,
+    pub switch_margin: f64,
 }
 
 impl Default for FinalRefine {
@@ -41,6 +47,8 @@ impl Default for FinalRefine {
             loss_scale_px: 4.0,
             max_iterations: 20,
             rounds: 4,
+            alternatives: 4,
+            switch_margin: 1.25,
         }
     }
 }
@@ -171,6 +179,7 @@ mod tests {
             iterations: 0,
             rmse_px: 0.0,
             covariance: Matrix6::identity(),
+            alternatives: Vec::new(),
         };
         refine.apply(k, corrs, 8.0, 1.0, 6, &mut solution);
         solution.pose

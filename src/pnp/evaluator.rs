@@ -78,7 +78,15 @@ impl Evaluator {
         for &i in &self.idx_buf {
             inliers[data.original[i]] = true;
         }
-        Ok(PnpSolution { pose: pose.to_camera_to_map(), inliers, num_inliers, iterations, rmse_px, covariance: cov })
+        Ok(PnpSolution {
+            pose: pose.to_camera_to_map(),
+            inliers,
+            num_inliers,
+            iterations,
+            rmse_px,
+            covariance: cov,
+            alternatives: Vec::new(),
+        })
     }
 
     /// Rounds of robust LM on the inliers while they change; a round that loses the consensus

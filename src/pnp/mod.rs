@@ -203,13 +203,19 @@ impl Agreement {
 }
 
 /// A verifier and how [`solve_pnp_ransac`] uses it: it keeps the `candidates` best
-/// distinct hypotheses by coverage, draws at least `min_iterations`, and returns the one with the most agreement +
-/// `coverage_weight`·(cells / the most cells of any candidate).
+/// distinct hypotheses by coverage, draws at least `min_iterations`, and returns the one with the
+/// most agreement + `coverage_weight`·(cells / the most cells of any candidate) among those
+/// covering at least `min_support_share` of the most cells.
 #[derive(Clone, Copy)]
 pub struct Verification<'a> {
     pub verifier: &'a dyn PoseVerifier,
     pub candidates: usize,
     pub coverage_weight: f64,
+    /// A candidate covering fewer cells than this share of the most cells of any candidate is
+    /// not chosen by its agreement, nor does it make the evidence trusted: a minimal sample of
+    /// wrong matches explains itself and a few more, and a prior agrees with such a pose as
+    /// much as with the true one often enough (where it is weak, as at close range).
+    pub min_support_share: f64,
     /// Hypotheses drawn at least (the verifier can only choose one that was drawn); the pool is
     /// verified then and every `check_every` samples after, until a candidate's in-view agreement
     /// ([`Agreement::in_view_share`] with `min_view`) reaches `accept`, the choice stays the
@@ -259,6 +265,9 @@ pub struct PnpSolution {
     pub rmse_px: f64,
     /// 6×6 covariance of `pose`, order `(x, y, z, rot x, rot y, rot z)`, see the module doc.
     pub covariance: nalgebra::Matrix6<f64>,
+    /// With a verifier: the pool's other supported candidates (camera-to-map), best choice
+    /// first, which evidence beyond the solved correspondences can still prefer.
+    pub alternatives: Vec<Isometry3<f64>>,
 }
 
 /// Map-to-camera rigid transform `x_cam = rotation · x_map + translation`, the inverse of the

@@ -134,15 +134,23 @@ impl<'a> Pool<'a> {
         v.settle_support > 0.0 && agreement.in_view_share(v.min_view) < v.min_trust && share >= v.settle_support
     }
 
-    /// The best in-view agreement of any verified candidate: how far the frame's evidence can be
-    /// trusted.
+    /// The best in-view agreement of any verified candidate with enough support (see
+    /// [`Pool::supported`]): how far the frame's evidence can be trusted.
     fn trust(&self) -> f64 {
         let min_view = self.verification.min_view;
-        self.items.iter().filter_map(|c| c.agreement).map(|a| a.in_view_share(min_view)).fold(0.0, f64::max)
+        self.supported().filter_map(|(_, c)| c.agreement).map(|a| a.in_view_share(min_view)).fold(0.0, f64::max)
     }
 
-    /// The verified candidate with the most agreement + `coverage_weight`·cells / most cells;
-    /// when no candidate reaches `min_trust`, the lowest-cost one (geometry alone).
+    /// The candidates (with their index) covering at least `min_support_share` of the most
+    /// cells of any.
+    fn supported(&self) -> impl Iterator<Item = (usize, &Candidate)> {
+        let most_cells = self.items.iter().map(|c| c.hypothesis.support).max().unwrap_or(0);
+        let floor = self.verification.min_support_share * most_cells as f64;
+        self.items.iter().enumerate().filter(move |(_, c)| c.hypothesis.support as f64 >= floor)
+    }
+
+    /// The supported verified candidate with the most agreement + `coverage_weight`·cells / most
+    /// cells; when none reaches `min_trust`, the lowest-cost one (geometry alone).
     pub(crate) fn choose(&self) -> Option<MapToCamera> {
         self.chosen().map(|i| self.items[i].hypothesis.pose)
     }
@@ -152,6 +160,26 @@ impl<'a> Pool<'a> {
         self.chosen().map(|i| self.items[i].members.as_slice())
     }
 
+    /// The supported candidates other than the chosen one, best choice first (verified ones by
+    /// their choice score, then the others by cost).
+    pub(crate) fn alternatives(&self) -> Vec<MapToCamera> {
+        let chosen = self.chosen();
+        let most_cells = self.items.iter().map(|c| c.hypothesis.support).max().unwrap_or(0).max(1) as f64;
+        let weight = self.verification.coverage_weight;
+        let mut ranked: Vec<(f64, f64, MapToCamera)> = self
+            .supported()
+            .filter(|(i, _)| Some(*i) != chosen)
+            .map(|(_, c)| {
+                let score = c
+                    .agreement
+                    .map_or(f64::NEG_INFINITY, |a| a.share() + weight * c.hypothesis.support as f64 / most_cells);
+                (score, c.hypothesis.cost, c.hypothesis.pose)
+            })
+            .collect();
+        ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.total_cmp(&b.1)));
+        ranked.into_iter().map(|(_, _, pose)| pose).collect()
+    }
+
     /// The index of the candidate [`Pool::choose`] returns.
     fn chosen(&self) -> Option<usize> {
         if self.trust() < self.verification.min_trust {
@@ -159,9 +187,7 @@ impl<'a> Pool<'a> {
         }
         let most_cells = self.items.iter().map(|c| c.hypothesis.support).max()?.max(1) as f64;
         let weight = self.verification.coverage_weight;
-        self.items
-            .iter()
-            .enumerate()
+        self.supported()
             .filter_map(|(i, c)| Some((c.agreement?.share() + weight * c.hypothesis.support as f64 / most_cells, i)))
             .max_by(|a, b| {
                 let cost = |i: usize| self.items[i].hypothesis.cost;

@@ -79,7 +79,10 @@ pub fn solve_pnp_ransac(problem: &Problem, guidance: &Guidance, params: &PnpPara
     };
     search.run();
     let pose = search.choice().ok_or(PnpError::NoConsensus { inliers: 0, required })?;
-    search.evaluator.solution(pose, params, required, problem.pixels.len(), search.iterations)
+    let alternatives = search.pool.as_ref().map_or_else(Vec::new, |p| p.alternatives());
+    let mut solution = search.evaluator.solution(pose, params, required, problem.pixels.len(), search.iterations)?;
+    solution.alternatives = alternatives.iter().map(MapToCamera::to_camera_to_map).collect();
+    Ok(solution)
 }
 
 /// The state of one robust search.

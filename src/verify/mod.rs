@@ -63,6 +63,9 @@ pub struct VerifyParams {
     /// Weight of the image coverage (cells of inliers over the best candidate's) beside the
     /// prior agreement in choosing among the candidates.
     pub coverage_weight: f64,
+    /// Candidates covering fewer cells than this share of the best one's are left out of the
+    /// choice and of the trust (see [`Verification::min_support_share`]).
+    pub min_support_share: f64,
 }
 
 impl Default for VerifyParams {
@@ -85,7 +88,8 @@ impl Default for VerifyParams {
             cell_px: 32.0,
             splat_spacings: 0.75,
             tolerance: 0.1,
-            coverage_weight: 0.25,
+            coverage_weight: 1.0,
+            min_support_share: 0.5,
         }
     }
 }
@@ -97,6 +101,7 @@ impl VerifyParams {
             verifier,
             candidates: self.candidates,
             coverage_weight: self.coverage_weight,
+            min_support_share: self.min_support_share,
             min_iterations: self.min_iterations,
             check_every: self.check_every,
             accept: self.accept,

@@ -1,0 +1,77 @@
+//! The last choice among the rejection-guided PnP's candidates, on every correspondence of the
+//! frame: rejection keeps a subset so that sampling is fast, and on it two poses can explain
+//! about as much (a pose and its mirror across a plane that holds most of the kept true matches,
+//! as at close range; a wrong cluster the weak prior prefers); the matches rejection left out
+//! tell them apart.
+
+use nalgebra::{Isometry3, Point2, Point3};
+
+use crate::geometry::Intrinsics;
+
+/// How much of a set of correspondences a pose explains.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Support {
+    /// Correspondences within the inlier threshold.
+    pub inliers: usize,
+    /// Distinct image cells holding one.
+    pub cells: usize,
+}
+
+/// The [`Support`] of the camera-to-map `pose` among the (pixel, map point) `pairs`:
+/// reprojection error under `threshold_px`, cells `cell_px` wide (at least one pixel) over the
+/// image of `k` (pixels outside it count in its border cells).
+pub fn support(
+    k: &Intrinsics,
+    pairs: impl Iterator<Item = (Point2<f64>, Point3<f64>)>,
+    pose: &Isometry3<f64>,
+    threshold_px: f64,
+    cell_px: f64,
+) -> Support {
+    let to_cam = pose.inverse();
+    let cell_px = cell_px.max(1.0);
+    let cols = (k.width as f64 / cell_px).ceil().max(1.0) as usize;
+    let rows = (k.height as f64 / cell_px).ceil().max(1.0) as usize;
+    let mut cells: Vec<usize> = Vec::new();
+    let mut inliers = 0;
+    for (pixel, point) in pairs {
+        let agrees = k.project(&to_cam.transform_point(&point)).is_some_and(|px| (px - pixel).norm() < threshold_px);
+        if agrees {
+            inliers += 1;
+            let col = ((pixel.x.max(0.0) / cell_px) as usize).min(cols - 1);
+            let row = ((pixel.y.max(0.0) / cell_px) as usize).min(rows - 1);
+            cells.push(row * cols + col);
+        }
+    }
+    cells.sort_unstable();
+    cells.dedup();
+    Support { inliers, cells: cells.len() }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    /// Inliers within the threshold; cells count distinct ones, border cells catch the pixels
+    /// outside the image; a point behind the camera never agrees.
+    #[test]
+    fn support_counts_inliers_and_their_cells() {
+        let k = Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
+        let pose =
+            Isometry3::from_parts(Translation3::new(0.1, 0.0, -0.2), UnitQuaternion::from_euler_angles(0.0, 0.1, 0.0));
+        let at =
+            |u: f64, v: f64, offset: f64| (Point2::new(u + offset, v), pose * k.back_project(&Point2::new(u, v), 2.0));
+        let pairs = vec![
+            at(10.0, 10.0, 0.0),
+            at(20.0, 12.0, 1.0),   // same 32 px cell
+            at(300.0, 200.0, 7.9), // just inside 8 px
+            at(400.0, 200.0, 8.1), // just outside
+            at(639.0, 479.0, 0.0),
+            (Point2::new(900.0, 900.0), pose * k.back_project(&Point2::new(900.0, 900.0), 2.0)), // off the image
+            (Point2::new(100.0, 100.0), pose * Point3::new(0.0, 0.0, -3.0)),                     // behind
+        ];
+        let s = support(&k, pairs.into_iter(), &pose, 8.0, 32.0);
+        // Cells: the first two share one, the third, and the last one with the pixel off the image.
+        assert_eq!(s, Support { inliers: 5, cells: 3 });
+    }
+}
