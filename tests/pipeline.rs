@@ -342,3 +342,28 @@ fn the_rejected_matches_settle_between_the_verifiers_candidates() {
     assert!(without > 10.0, "the kept set alone: {without}°");
     assert!(with < 3.0, "with the rejected matches: {with}°");
 }
+
+/// The fast path's unsettled pose is a candidate of the last choice too: on a close-range hard
+/// frame whose kept set holds only a wrong cluster of 9 matches (none of the verifier's
+/// candidates is near the truth), the budgeted LO-RANSAC on every match had found the true pose,
+/// which explains 50-odd of them.
+#[test]
+fn the_fast_paths_pose_is_a_candidate_of_the_last_choice() {
+    if onnx_runtime().is_none() {
+        return;
+    }
+    let scene = generate(&SynthConfig { frames: 100, seed: 11, ..SynthConfig::preset("hard+close").unwrap() });
+    let frame = &scene.frames[65];
+    let gt = frame.ground_truth.as_ref().and_then(|g| g.pose.as_ref()).expect("gt pose");
+    let error_with = |alternatives: usize| {
+        let mut params = LocalizerParams::default();
+        params.final_refine.alternatives = alternatives;
+        let mut localizer = Localizer::new(params).expect("a localizer");
+        localizer.set_map(&scene.map);
+        let pose = localizer.process(frame).pose.expect("a pose");
+        pose.rotation.angle_to(&gt.rotation).to_degrees()
+    };
+    let (with, without) = (error_with(4), error_with(0));
+    assert!(without > 10.0, "the kept set alone: {without}°");
+    assert!(with < 2.0, "with the fast path's pose: {with}°");
+}

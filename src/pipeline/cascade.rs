@@ -48,11 +48,14 @@ impl Default for CascadeParams {
     }
 }
 
-/// What the fast path measured on a frame it did not settle (for diagnostics).
+/// What the fast path measured on a frame it did not settle (for diagnostics), and the pose it
+/// had found (a candidate for the last choice on every match).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct FastPathCheck {
     pub inlier_ratio: f64,
     pub cell_share: f64,
+    /// Camera-to-map pose of its best hypothesis, when it had one.
+    pub pose: Option<nalgebra::Isometry3<f64>>,
 }
 
 impl CascadeParams {
@@ -109,6 +112,7 @@ impl CascadeParams {
         let check = FastPathCheck {
             inlier_ratio: solution.num_inliers as f64 / pixels.len().max(1) as f64,
             cell_share: supported as f64 / all.max(1) as f64,
+            pose: Some(solution.pose),
         };
         let settled = check.inlier_ratio >= self.min_inlier_ratio && check.cell_share >= self.min_cell_share;
         Ok(if settled { Ok(solution) } else { Err(check) })

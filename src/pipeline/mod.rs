@@ -310,7 +310,8 @@ impl Localizer {
             Ok(mut solution) => {
                 if rejection.is_some() && self.params.final_refine.enabled {
                     self.refine_on_all(frame, &mut solution);
-                    self.arbitrate_on_all(frame, &mut solution);
+                    let fast_path_pose = out.fast_path_check.and_then(|c| c.pose);
+                    self.arbitrate_on_all(frame, fast_path_pose, &mut solution);
                 }
                 out.kept = match rejection {
                     Some(r) => with_scores(r),
@@ -399,10 +400,11 @@ impl Localizer {
         );
     }
 
-    /// The pool's first `final_refine.alternatives` other candidates, each refined on every
-    /// correspondence as the chosen pose was ([`arbiter`]): one whose support covers more than
-    /// `final_refine.switch_margin` times the chosen pose's cells replaces it.
-    fn arbitrate_on_all(&self, frame: &Frame, solution: &mut PnpSolution) {
+    /// The pool's first `final_refine.alternatives` other candidates and the fast path's
+    /// unsettled pose, each refined on every correspondence as the chosen pose was
+    /// ([`arbiter`]): one whose support covers more than `final_refine.switch_margin` times the
+    /// chosen pose's cells replaces it.
+    fn arbitrate_on_all(&self, frame: &Frame, fast_path_pose: Option<Isometry3<f64>>, solution: &mut PnpSolution) {
         let refine = &self.params.final_refine;
         let pnp = self.pnp_params(frame);
         let support = |pairs: &mut dyn Iterator<Item = (Point2<f64>, Point3<f64>)>, pose: &Isometry3<f64>| {
@@ -411,7 +413,8 @@ impl Localizer {
         let all = || frame.correspondences.iter().map(|c| (c.pixel, c.point));
         let mut best = support(&mut all(), &solution.pose);
         let mut switched = false;
-        for start in std::mem::take(&mut solution.alternatives).into_iter().take(refine.alternatives) {
+        let pool = std::mem::take(&mut solution.alternatives).into_iter().take(refine.alternatives);
+        for start in pool.chain(fast_path_pose.filter(|_| refine.alternatives > 0)) {
             let mut candidate = PnpSolution { pose: start, ..solution.clone() };
             self.refine_on_all(frame, &mut candidate);
             let candidate_support = support(&mut all(), &candidate.pose);

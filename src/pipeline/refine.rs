@@ -28,10 +28,10 @@ pub struct FinalRefine {
     /// while their number grows (a pose found on a subset that misses part of the true matches
     /// recruits them as it sharpens); 1: one gathering.
     pub rounds: usize,
-    /// After the rejection-guided PnP, its verifier's first this many other candidates are
-    /// refined on every correspondence too, and one whose support there covers more than
-    /// `switch_margin` times the chosen pose's image cells replaces it (the matches rejection
-    /// left out settle what the kept ones could not); 0: off.
+    /// After the rejection-guided PnP, its verifier's first this many other candidates, and the
+    /// cascade's unsettled fast-path pose, are refined on every correspondence too, and one whose
+    /// support there covers more than `switch_margin` times the chosen pose's image cells
+    /// replaces it (the matches rejection left out settle what the kept ones could not); 0: off.
     pub alternatives: usize,
     pub switch_margin: f64,
 }

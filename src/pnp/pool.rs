@@ -144,9 +144,18 @@ impl<'a> Pool<'a> {
     /// The candidates (with their index) covering at least `min_support_share` of the most
     /// cells of any.
     fn supported(&self) -> impl Iterator<Item = (usize, &Candidate)> {
-        let most_cells = self.items.iter().map(|c| c.hypothesis.support).max().unwrap_or(0);
-        let floor = self.verification.min_support_share * most_cells as f64;
+        let floor = self.verification.min_support_share * self.most_cells();
         self.items.iter().enumerate().filter(move |(_, c)| c.hypothesis.support as f64 >= floor)
+    }
+
+    /// The most cells any candidate covers (at least one).
+    fn most_cells(&self) -> f64 {
+        self.items.iter().map(|c| c.hypothesis.support).max().unwrap_or(0).max(1) as f64
+    }
+
+    /// A verified candidate's choice score: its agreement + `coverage_weight`·cells / most cells.
+    fn choice_score(&self, c: &Candidate, most_cells: f64) -> Option<f64> {
+        Some(c.agreement?.share() + self.verification.coverage_weight * c.hypothesis.support as f64 / most_cells)
     }
 
     /// The supported verified candidate with the most agreement + `coverage_weight`·cells / most
@@ -163,16 +172,12 @@ impl<'a> Pool<'a> {
     /// The supported candidates other than the chosen one, best choice first (verified ones by
     /// their choice score, then the others by cost).
     pub(crate) fn alternatives(&self) -> Vec<MapToCamera> {
-        let chosen = self.chosen();
-        let most_cells = self.items.iter().map(|c| c.hypothesis.support).max().unwrap_or(0).max(1) as f64;
-        let weight = self.verification.coverage_weight;
+        let (chosen, most_cells) = (self.chosen(), self.most_cells());
         let mut ranked: Vec<(f64, f64, MapToCamera)> = self
             .supported()
             .filter(|(i, _)| Some(*i) != chosen)
             .map(|(_, c)| {
-                let score = c
-                    .agreement
-                    .map_or(f64::NEG_INFINITY, |a| a.share() + weight * c.hypothesis.support as f64 / most_cells);
+                let score = self.choice_score(c, most_cells).unwrap_or(f64::NEG_INFINITY);
                 (score, c.hypothesis.cost, c.hypothesis.pose)
             })
             .collect();
@@ -185,10 +190,9 @@ impl<'a> Pool<'a> {
         if self.trust() < self.verification.min_trust {
             return self.extreme(false);
         }
-        let most_cells = self.items.iter().map(|c| c.hypothesis.support).max()?.max(1) as f64;
-        let weight = self.verification.coverage_weight;
+        let most_cells = self.most_cells();
         self.supported()
-            .filter_map(|(i, c)| Some((c.agreement?.share() + weight * c.hypothesis.support as f64 / most_cells, i)))
+            .filter_map(|(i, c)| Some((self.choice_score(c, most_cells)?, i)))
             .max_by(|a, b| {
                 let cost = |i: usize| self.items[i].hypothesis.cost;
                 a.0.total_cmp(&b.0).then(cost(b.1).total_cmp(&cost(a.1)))
