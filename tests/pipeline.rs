@@ -317,6 +317,19 @@ fn a_pose_gate_steers_every_path_of_the_cascade() {
     }
 }
 
+/// Rotation error (degrees) of frame `index` of `scene`, localized alone with the last choice
+/// on every match given `alternatives` (0: off).
+fn last_choice_error(scene: &angle_i2p::synth::SynthScene, index: usize, alternatives: usize) -> f64 {
+    let frame = &scene.frames[index];
+    let gt = frame.ground_truth.as_ref().and_then(|g| g.pose.as_ref()).expect("gt pose");
+    let mut params = LocalizerParams::default();
+    params.final_refine.alternatives = alternatives;
+    let mut localizer = Localizer::new(params).expect("a localizer");
+    localizer.set_map(&scene.map);
+    let pose = localizer.process(frame).pose.expect("a pose");
+    pose.rotation.angle_to(&gt.rotation).to_degrees()
+}
+
 /// The last choice on every correspondence (issue #9): at close range with a harsh prior the
 /// kept set of a frame can hold only a few true matches that a wrong pose explains as well,
 /// and the prior prefers it; the matches rejection left out support the true pose, which the
@@ -328,17 +341,7 @@ fn the_rejected_matches_settle_between_the_verifiers_candidates() {
         return;
     }
     let scene = generate(&SynthConfig { frames: 20, seed: 7, ..SynthConfig::preset("extreme+close+harsh").unwrap() });
-    let frame = &scene.frames[11];
-    let gt = frame.ground_truth.as_ref().and_then(|g| g.pose.as_ref()).expect("gt pose");
-    let error_with = |alternatives: usize| {
-        let mut params = LocalizerParams::default();
-        params.final_refine.alternatives = alternatives;
-        let mut localizer = Localizer::new(params).expect("a localizer");
-        localizer.set_map(&scene.map);
-        let pose = localizer.process(frame).pose.expect("a pose");
-        pose.rotation.angle_to(&gt.rotation).to_degrees()
-    };
-    let (with, without) = (error_with(4), error_with(0));
+    let (with, without) = (last_choice_error(&scene, 11, 4), last_choice_error(&scene, 11, 0));
     assert!(without > 10.0, "the kept set alone: {without}°");
     assert!(with < 3.0, "with the rejected matches: {with}°");
 }
@@ -353,17 +356,7 @@ fn the_fast_paths_pose_is_a_candidate_of_the_last_choice() {
         return;
     }
     let scene = generate(&SynthConfig { frames: 100, seed: 11, ..SynthConfig::preset("hard+close").unwrap() });
-    let frame = &scene.frames[65];
-    let gt = frame.ground_truth.as_ref().and_then(|g| g.pose.as_ref()).expect("gt pose");
-    let error_with = |alternatives: usize| {
-        let mut params = LocalizerParams::default();
-        params.final_refine.alternatives = alternatives;
-        let mut localizer = Localizer::new(params).expect("a localizer");
-        localizer.set_map(&scene.map);
-        let pose = localizer.process(frame).pose.expect("a pose");
-        pose.rotation.angle_to(&gt.rotation).to_degrees()
-    };
-    let (with, without) = (error_with(4), error_with(0));
+    let (with, without) = (last_choice_error(&scene, 65, 4), last_choice_error(&scene, 65, 0));
     assert!(without > 10.0, "the kept set alone: {without}°");
     assert!(with < 2.0, "with the fast path's pose: {with}°");
 }
