@@ -37,6 +37,12 @@ impl Intrinsics {
         (p.z > 0.0).then(|| Point2::new(self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy))
     }
 
+    /// Distance in pixels between `pixel` and the projection of the camera-frame point `p`;
+    /// infinite behind the camera.
+    pub fn reprojection_error(&self, p: &Point3<f64>, pixel: &Point2<f64>) -> f64 {
+        self.project(p).map_or(f64::INFINITY, |px| (px - pixel).norm())
+    }
+
     /// π⁻¹(p, d, K): the camera-frame point at depth `depth` along pixel `pixel`'s ray.
     pub fn back_project(&self, pixel: &Point2<f64>, depth: f64) -> Point3<f64> {
         Point3::new((pixel.x - self.cx) / self.fx * depth, (pixel.y - self.cy) / self.fy * depth, depth)

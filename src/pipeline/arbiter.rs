@@ -4,11 +4,12 @@
 //! as at close range; a wrong cluster the weak prior prefers); the matches rejection left out
 //! tell them apart.
 
-use nalgebra::{Isometry3, Point2, Point3};
+use nalgebra::Isometry3;
 
+use crate::frame::Correspondence;
 use crate::geometry::Intrinsics;
 
-/// How much of a set of correspondences a pose explains.
+/// How much of a frame's correspondences a pose explains.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Support {
     /// Correspondences within the inlier threshold.
@@ -17,12 +18,12 @@ pub struct Support {
     pub cells: usize,
 }
 
-/// The [`Support`] of the camera-to-map `pose` among the (pixel, map point) `pairs`:
-/// reprojection error under `threshold_px`, cells `cell_px` wide (at least one pixel) over the
-/// image of `k` (pixels outside it count in its border cells).
+/// The [`Support`] of the camera-to-map `pose` among `correspondences`: reprojection error
+/// under `threshold_px`, cells `cell_px` wide (at least one pixel) over the image of `k` (pixels
+/// outside it count in its border cells).
 pub fn support(
     k: &Intrinsics,
-    pairs: impl Iterator<Item = (Point2<f64>, Point3<f64>)>,
+    correspondences: &[Correspondence],
     pose: &Isometry3<f64>,
     threshold_px: f64,
     cell_px: f64,
@@ -33,12 +34,11 @@ pub fn support(
     let rows = (k.height as f64 / cell_px).ceil().max(1.0) as usize;
     let mut cells: Vec<usize> = Vec::new();
     let mut inliers = 0;
-    for (pixel, point) in pairs {
-        let agrees = k.project(&to_cam.transform_point(&point)).is_some_and(|px| (px - pixel).norm() < threshold_px);
-        if agrees {
+    for c in correspondences {
+        if k.reprojection_error(&to_cam.transform_point(&c.point), &c.pixel) < threshold_px {
             inliers += 1;
-            let col = ((pixel.x.max(0.0) / cell_px) as usize).min(cols - 1);
-            let row = ((pixel.y.max(0.0) / cell_px) as usize).min(rows - 1);
+            let col = ((c.pixel.x.max(0.0) / cell_px) as usize).min(cols - 1);
+            let row = ((c.pixel.y.max(0.0) / cell_px) as usize).min(rows - 1);
             cells.push(row * cols + col);
         }
     }
@@ -50,7 +50,7 @@ pub fn support(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Translation3, UnitQuaternion};
+    use nalgebra::{Point2, Point3, Translation3, UnitQuaternion};
 
     /// Inliers within the threshold; cells count distinct ones, border cells catch the pixels
     /// outside the image; a point behind the camera never agrees.
@@ -61,7 +61,7 @@ mod tests {
             Isometry3::from_parts(Translation3::new(0.1, 0.0, -0.2), UnitQuaternion::from_euler_angles(0.0, 0.1, 0.0));
         let at =
             |u: f64, v: f64, offset: f64| (Point2::new(u + offset, v), pose * k.back_project(&Point2::new(u, v), 2.0));
-        let pairs = vec![
+        let pairs = [
             at(10.0, 10.0, 0.0),
             at(20.0, 12.0, 1.0),   // same 32 px cell
             at(300.0, 200.0, 7.9), // just inside 8 px
@@ -70,7 +70,9 @@ mod tests {
             (Point2::new(900.0, 900.0), pose * k.back_project(&Point2::new(900.0, 900.0), 2.0)), // off the image
             (Point2::new(100.0, 100.0), pose * Point3::new(0.0, 0.0, -3.0)),                     // behind
         ];
-        let s = support(&k, pairs.into_iter(), &pose, 8.0, 32.0);
+        let correspondences: Vec<Correspondence> =
+            pairs.into_iter().map(|(pixel, point)| Correspondence { pixel, point, score: 1.0 }).collect();
+        let s = support(&k, &correspondences, &pose, 8.0, 32.0);
         // Cells: the first two share one, the third, and the last one with the pixel off the image.
         assert_eq!(s, Support { inliers: 5, cells: 3 });
     }

@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use nalgebra::{Isometry3, Matrix6, Point2, Point3};
+use nalgebra::{Isometry3, Matrix6};
 use serde::{Deserialize, Serialize};
 
 use crate::consistency::ScaleShift;
@@ -407,17 +407,16 @@ impl Localizer {
     fn arbitrate_on_all(&self, frame: &Frame, fast_path_pose: Option<Isometry3<f64>>, solution: &mut PnpSolution) {
         let refine = &self.params.final_refine;
         let pnp = self.pnp_params(frame);
-        let support = |pairs: &mut dyn Iterator<Item = (Point2<f64>, Point3<f64>)>, pose: &Isometry3<f64>| {
-            arbiter::support(&frame.intrinsics, pairs, pose, pnp.threshold_px, pnp.coverage_cell_px)
+        let support = |pose: &Isometry3<f64>| {
+            arbiter::support(&frame.intrinsics, &frame.correspondences, pose, pnp.threshold_px, pnp.coverage_cell_px)
         };
-        let all = || frame.correspondences.iter().map(|c| (c.pixel, c.point));
-        let mut best = support(&mut all(), &solution.pose);
+        let mut best = support(&solution.pose);
         let mut switched = false;
         let pool = std::mem::take(&mut solution.alternatives).into_iter().take(refine.alternatives);
         for start in pool.chain(fast_path_pose.filter(|_| refine.alternatives > 0)) {
             let mut candidate = PnpSolution { pose: start, ..solution.clone() };
             self.refine_on_all(frame, &mut candidate);
-            let candidate_support = support(&mut all(), &candidate.pose);
+            let candidate_support = support(&candidate.pose);
             if candidate_support.cells as f64 > refine.switch_margin * best.cells as f64 {
                 (best, *solution, switched) = (candidate_support, candidate, true);
             }
@@ -427,8 +426,7 @@ impl Localizer {
             let to_cam = solution.pose.inverse();
             let scratch = &self.scratch;
             for ((flag, pixel), point) in solution.inliers.iter_mut().zip(&scratch.pixels).zip(&scratch.points) {
-                let projected = frame.intrinsics.project(&to_cam.transform_point(point));
-                *flag = projected.is_some_and(|px| (px - pixel).norm() < pnp.threshold_px);
+                *flag = frame.intrinsics.reprojection_error(&to_cam.transform_point(point), pixel) < pnp.threshold_px;
             }
             solution.num_inliers = solution.inliers.iter().filter(|&&f| f).count();
         }

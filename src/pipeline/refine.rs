@@ -97,13 +97,8 @@ impl FinalRefine {
         pose: &nalgebra::Isometry3<f64>,
     ) -> Option<Vec<&'c Correspondence>> {
         let to_cam = pose.inverse();
-        let residuals: Vec<f64> = correspondences
-            .iter()
-            .map(|c| {
-                let x = to_cam.transform_point(&c.point);
-                k.project(&x).map_or(f64::INFINITY, |px| (px - c.pixel).norm())
-            })
-            .collect();
+        let residuals: Vec<f64> =
+            correspondences.iter().map(|c| k.reprojection_error(&to_cam.transform_point(&c.point), &c.pixel)).collect();
         let mut inlier_residuals: Vec<f64> = residuals.iter().copied().filter(|r| *r < inlier_threshold_px).collect();
         if inlier_residuals.len() < 3 {
             return None;
