@@ -311,7 +311,9 @@ impl Localizer {
                 if rejection.is_some() && self.params.final_refine.enabled {
                     self.refine_on_all(frame, &mut solution);
                     let fast_path_pose = out.fast_path_check.and_then(|c| c.pose);
-                    self.arbitrate_on_all(frame, fast_path_pose, &mut solution);
+                    let ranked = rejection.and_then(|r| self.ranked_search(frame, &r.scores));
+                    let poses: Vec<_> = fast_path_pose.into_iter().chain(ranked).collect();
+                    self.arbitrate_on_all(frame, &poses, &mut solution);
                 }
                 out.kept = match rejection {
                     Some(r) => with_scores(r),
@@ -400,11 +402,19 @@ impl Localizer {
         );
     }
 
-    /// The pool's first `final_refine.alternatives` other candidates and the fast path's
-    /// unsettled pose, each refined on every correspondence as the chosen pose was
-    /// ([`arbiter`]): one whose support covers more than `final_refine.switch_margin` times the
-    /// chosen pose's cells replaces it.
-    fn arbitrate_on_all(&self, frame: &Frame, fast_path_pose: Option<Isometry3<f64>>, solution: &mut PnpSolution) {
+    /// The last choice's search over every correspondence in the rejector's `scores` order
+    /// ([`arbiter::ranked_search`]), when the last choice is on.
+    fn ranked_search(&self, frame: &Frame, scores: &[f32]) -> Option<Isometry3<f64>> {
+        let refine = &self.params.final_refine;
+        let iterations = if refine.alternatives > 0 { refine.ranked_iterations } else { 0 };
+        arbiter::ranked_search(frame, scores, &self.pnp_params(frame), iterations, self.pose_gate.as_ref())
+    }
+
+    /// The pool's first `final_refine.alternatives` other candidates and `poses` (the fast
+    /// path's unsettled pose, the ranked search's), each refined on every correspondence as the
+    /// chosen pose was ([`arbiter`]): one whose support covers more than
+    /// `final_refine.switch_margin` times the chosen pose's cells replaces it.
+    fn arbitrate_on_all(&self, frame: &Frame, poses: &[Isometry3<f64>], solution: &mut PnpSolution) {
         let refine = &self.params.final_refine;
         let pnp = self.pnp_params(frame);
         let support = |pose: &Isometry3<f64>| {
@@ -413,7 +423,7 @@ impl Localizer {
         let mut best = support(&solution.pose);
         let mut switched = false;
         let pool = std::mem::take(&mut solution.alternatives).into_iter().take(refine.alternatives);
-        for start in pool.chain(fast_path_pose.filter(|_| refine.alternatives > 0)) {
+        for start in pool.chain(poses.iter().copied().filter(|_| refine.alternatives > 0)) {
             let mut candidate = PnpSolution { pose: start, ..solution.clone() };
             self.refine_on_all(frame, &mut candidate);
             let candidate_support = support(&candidate.pose);

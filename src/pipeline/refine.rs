@@ -34,6 +34,10 @@ pub struct FinalRefine {
     /// replaces it (the matches rejection left out settle what the kept ones could not); 0: off.
     pub alternatives: usize,
     pub switch_margin: f64,
+    /// With `alternatives` on: hypotheses of a PROSAC over every correspondence in the
+    /// rejector's score order, whose pose is a candidate too (the kept matches first, then
+    /// those ranked just under the keep threshold); 0: off.
+    pub ranked_iterations: usize,
 }
 
 impl Default for FinalRefine {
@@ -49,6 +53,7 @@ impl Default for FinalRefine {
             rounds: 4,
             alternatives: 4,
             switch_margin: 1.25,
+            ranked_iterations: 150,
         }
     }
 }
