@@ -412,25 +412,28 @@ impl Localizer {
 
     /// The pool's first `final_refine.alternatives` other candidates and `poses` (the fast
     /// path's unsettled pose, the ranked search's), each refined on every correspondence as the
-    /// chosen pose was ([`arbiter`]): one whose support covers more than
-    /// `final_refine.switch_margin` times the chosen pose's cells replaces it.
+    /// chosen pose was ([`arbiter`]): the best supported of them replaces the chosen pose when
+    /// it covers more than `final_refine.switch_margin` times its cells.
     fn arbitrate_on_all(&self, frame: &Frame, poses: &[Isometry3<f64>], solution: &mut PnpSolution) {
         let refine = &self.params.final_refine;
         let pnp = self.pnp_params(frame);
         let support = |pose: &Isometry3<f64>| {
             arbiter::support(&frame.intrinsics, &frame.correspondences, pose, pnp.threshold_px, pnp.coverage_cell_px)
         };
-        let mut best = support(&solution.pose);
-        let mut switched = false;
+        let incumbent = support(&solution.pose);
         let pool = std::mem::take(&mut solution.alternatives).into_iter().take(refine.alternatives);
-        for start in pool.chain(poses.iter().copied().filter(|_| refine.alternatives > 0)) {
+        let candidates = pool.chain(poses.iter().copied().filter(|_| refine.alternatives > 0)).map(|start| {
             let mut candidate = PnpSolution { pose: start, ..solution.clone() };
             self.refine_on_all(frame, &mut candidate);
-            let candidate_support = support(&candidate.pose);
-            if candidate_support.cells as f64 > refine.switch_margin * best.cells as f64 {
-                (best, *solution, switched) = (candidate_support, candidate, true);
+            (support(&candidate.pose), candidate)
+        });
+        let switched = match arbiter::challenger(incumbent, candidates, refine.switch_margin) {
+            Some(candidate) => {
+                *solution = candidate;
+                true
             }
-        }
+            None => false,
+        };
         if switched {
             // PnP's inliers are the new pose's among the correspondences PnP saw.
             let to_cam = solution.pose.inverse();

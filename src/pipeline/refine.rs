@@ -29,9 +29,10 @@ pub struct FinalRefine {
     /// recruits them as it sharpens); 1: one gathering.
     pub rounds: usize,
     /// After the rejection-guided PnP, its verifier's first this many other candidates, and the
-    /// cascade's unsettled fast-path pose, are refined on every correspondence too, and one whose
-    /// support there covers more than `switch_margin` times the chosen pose's image cells
-    /// replaces it (the matches rejection left out settle what the kept ones could not); 0: off.
+    /// cascade's unsettled fast-path pose, are refined on every correspondence too, and the
+    /// best supported of them there (most image cells, then inliers) replaces the chosen pose
+    /// when it covers more than `switch_margin` times its cells (the matches rejection left out
+    /// settle what the kept ones could not); 0: off.
     pub alternatives: usize,
     pub switch_margin: f64,
     /// With `alternatives` on: hypotheses of a PROSAC over every correspondence in the
