@@ -427,22 +427,15 @@ impl Localizer {
             self.refine_on_all(frame, &mut candidate);
             (support(&candidate.pose), candidate)
         });
-        let switched = match arbiter::challenger(incumbent, candidates, refine.switch_margin) {
-            Some(candidate) => {
-                *solution = candidate;
-                true
-            }
-            None => false,
-        };
-        if switched {
-            // PnP's inliers are the new pose's among the correspondences PnP saw.
-            let to_cam = solution.pose.inverse();
-            let scratch = &self.scratch;
-            for ((flag, pixel), point) in solution.inliers.iter_mut().zip(&scratch.pixels).zip(&scratch.points) {
-                *flag = frame.intrinsics.reprojection_error(&to_cam.transform_point(point), pixel) < pnp.threshold_px;
-            }
-            solution.num_inliers = solution.inliers.iter().filter(|&&f| f).count();
+        let Some(challenger) = arbiter::challenger(incumbent, candidates, refine.switch_margin) else { return };
+        *solution = challenger;
+        // PnP's inliers are the new pose's among the correspondences PnP saw.
+        let to_cam = solution.pose.inverse();
+        let scratch = &self.scratch;
+        for ((flag, pixel), point) in solution.inliers.iter_mut().zip(&scratch.pixels).zip(&scratch.points) {
+            *flag = frame.intrinsics.reprojection_error(&to_cam.transform_point(point), pixel) < pnp.threshold_px;
         }
+        solution.num_inliers = solution.inliers.iter().filter(|&&f| f).count();
     }
 
     fn validate(&self, frame: &Frame) -> Result<(), Failure> {
