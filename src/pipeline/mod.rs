@@ -420,12 +420,14 @@ impl Localizer {
         let support = |pose: &Isometry3<f64>| {
             arbiter::support(&frame.intrinsics, &frame.correspondences, pose, pnp.threshold_px, pnp.coverage_cell_px)
         };
-        let incumbent = support(&solution.pose);
+        let (incumbent, incumbent_inliers) = support(&solution.pose);
         let pool = std::mem::take(&mut solution.alternatives).into_iter().take(refine.alternatives);
         let candidates = pool.chain(poses.iter().copied().filter(|_| refine.alternatives > 0)).map(|start| {
             let mut candidate = PnpSolution { pose: start, ..solution.clone() };
             self.refine_on_all(frame, &mut candidate);
-            (support(&candidate.pose), candidate)
+            let (support, inliers) = support(&candidate.pose);
+            let shared = arbiter::shared_inliers(&inliers, &incumbent_inliers);
+            (arbiter::Challenge { support, shared }, candidate)
         });
         let Some(challenger) = arbiter::challenger(incumbent, candidates, refine.switch_margin) else { return };
         *solution = challenger;
