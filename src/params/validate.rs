@@ -29,6 +29,8 @@ enum Range {
     OpenUnit,
     /// In (0, 1].
     Share,
+    /// Finite and ≥ 1.
+    AtLeastOne,
 }
 
 impl Range {
@@ -39,6 +41,7 @@ impl Range {
             Range::Unit => (0.0..=1.0).contains(&v),
             Range::OpenUnit => v > 0.0 && v < 1.0,
             Range::Share => v > 0.0 && v <= 1.0,
+            Range::AtLeastOne => v.is_finite() && v >= 1.0,
         }
     }
 
@@ -49,6 +52,7 @@ impl Range {
             Range::Unit => "in [0, 1]",
             Range::OpenUnit => "in (0, 1), exclusive",
             Range::Share => "in (0, 1]",
+            Range::AtLeastOne => "finite, at least 1",
         }
     }
 }
@@ -164,13 +168,7 @@ impl LocalizerParams {
         }
         real("final_refine.loss_scale_px", f.loss_scale_px, Range::Positive)?;
         at_least("final_refine.rounds", f.rounds as u64, 1, "at least 1")?;
-        if !(f.switch_margin >= 1.0 && f.switch_margin.is_finite()) {
-            return Err(InvalidParam {
-                key: "final_refine.switch_margin",
-                value: f.switch_margin.to_string(),
-                range: "finite, at least 1",
-            });
-        }
+        real("final_refine.switch_margin", f.switch_margin, Range::AtLeastOne)?;
         let c = &self.cascade;
         at_least("cascade.max_iterations", c.max_iterations as u64, 1, "at least 1")?;
         at_least("cascade.probe_iterations", c.probe_iterations as u64, 1, "at least 1")?;

@@ -6,9 +6,10 @@
 
 use nalgebra::Isometry3;
 
+use super::cascade::Matches;
 use crate::frame::{Correspondence, Frame};
 use crate::geometry::Intrinsics;
-use crate::pnp::{solve_pnp_ransac, Guidance, PnpParams, PoseGate, Problem};
+use crate::pnp::{PnpParams, PoseGate};
 
 /// A candidate of the last choice that the kept set cannot give: PROSAC over every
 /// correspondence of `frame`, ranked by the rejector's `scores` (one per correspondence), with
@@ -26,13 +27,8 @@ pub fn ranked_search(
     if iterations == 0 || scores.len() != frame.correspondences.len() {
         return None;
     }
-    let params =
-        PnpParams { max_iterations: iterations, min_iterations: pnp.min_iterations.min(iterations), ..pnp.clone() };
-    let pixels: Vec<_> = frame.correspondences.iter().map(|c| c.pixel).collect();
-    let points: Vec<_> = frame.correspondences.iter().map(|c| c.point).collect();
-    let guidance = Guidance { scores: Some(scores), gate, ..Guidance::default() };
-    let problem = Problem { intrinsics: &frame.intrinsics, pixels: &pixels, points: &points };
-    solve_pnp_ransac(&problem, &guidance, &params).ok().map(|solution| solution.pose)
+    let matches = Matches::ranked(frame, scores.to_vec());
+    matches.prosac(frame, pnp, iterations, gate).ok().map(|solution| solution.pose)
 }
 
 /// How much of a frame's correspondences a pose explains.

@@ -119,19 +119,26 @@ impl CascadeParams {
     }
 }
 
-/// A frame's correspondences split as PnP takes them, built once for both attempts.
-struct Matches {
+/// A frame's correspondences split as PnP takes them, with the scores PROSAC ranks them by;
+/// built once for both attempts of the fast path.
+pub(super) struct Matches {
     pixels: Vec<nalgebra::Point2<f64>>,
     points: Vec<nalgebra::Point3<f64>>,
     scores: Vec<f32>,
 }
 
 impl Matches {
+    /// Ranked by the matcher's scores.
     fn of(frame: &Frame) -> Self {
+        Self::ranked(frame, frame.correspondences.iter().map(|c| c.score).collect())
+    }
+
+    /// Ranked by `scores`, one per correspondence (e.g. the rejector's).
+    pub(super) fn ranked(frame: &Frame, scores: Vec<f32>) -> Self {
         Self {
             pixels: frame.correspondences.iter().map(|c| c.pixel).collect(),
             points: frame.correspondences.iter().map(|c| c.point).collect(),
-            scores: frame.correspondences.iter().map(|c| c.score).collect(),
+            scores,
         }
     }
 
@@ -144,12 +151,20 @@ impl Matches {
         iterations: usize,
         gate: Option<&PoseGate>,
     ) -> Result<PnpSolution, crate::pnp::PnpError> {
-        let params = PnpParams {
-            max_iterations: iterations,
-            min_iterations: pnp.min_iterations.min(iterations),
-            coverage_cell_px: 0.0,
-            ..pnp.clone()
-        };
+        self.prosac(frame, &PnpParams { coverage_cell_px: 0.0, ..pnp.clone() }, iterations, gate)
+    }
+
+    /// PROSAC by these matches' scores with `pnp` (its scoring, no verification) and at most
+    /// `iterations` hypotheses, inside `gate` if any.
+    pub(super) fn prosac(
+        &self,
+        frame: &Frame,
+        pnp: &PnpParams,
+        iterations: usize,
+        gate: Option<&PoseGate>,
+    ) -> Result<PnpSolution, crate::pnp::PnpError> {
+        let params =
+            PnpParams { max_iterations: iterations, min_iterations: pnp.min_iterations.min(iterations), ..pnp.clone() };
         let guidance = Guidance { scores: Some(&self.scores), gate, ..Guidance::default() };
         let problem = Problem { intrinsics: &frame.intrinsics, pixels: &self.pixels, points: &self.points };
         solve_pnp_ransac(&problem, &guidance, &params)
