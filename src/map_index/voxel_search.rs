@@ -15,6 +15,11 @@ use super::voxels::{cell_of, key_of, Voxel, VoxelGrid};
 /// distances never lets a nearer point outside the searched voxels go unnoticed.
 const REACH_SLACK: f32 = 1e-4;
 
+/// A reach just past a found point's distance (with slack for rounding).
+fn reach_past(found: &Found) -> f32 {
+    found.distance_sq.sqrt() * (1.0 + REACH_SLACK) + f32::EPSILON
+}
+
 /// A map point a search found.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Found {
@@ -36,9 +41,20 @@ impl VoxelGrid {
         if k == 0 || !q.iter().all(|v| v.is_finite()) {
             return Vec::new();
         }
-        // A first reach: the k-th nearest point of q's own voxel, when it holds k points.
+        // A first answer: the k nearest points of q's own voxel, when it holds k; it is the
+        // answer when the sphere through the k-th of them stays in that voxel.
         let own = self.keys.binary_search(&key_of(q, self.voxel_m)).ok();
-        let mut reach = own.and_then(|v| self.kth_distance_in(v, q, k)).unwrap_or(self.voxel_m);
+        let in_own = own.filter(|&v| self.voxels.get(v).is_some_and(|voxel| voxel.len >= k)).map(|v| self.merged(q, k, None, &[v]));
+        let mut reach = match in_own.as_ref().and_then(|found| found.last()) {
+            Some(kth) => {
+                let reach = reach_past(kth);
+                if let Some(found) = in_own.filter(|_| self.in_one_voxel(q, reach)) {
+                    return found.iter().map(|f| f.map_index as usize).collect();
+                }
+                reach
+            }
+            None => self.voxel_m,
+        };
         loop {
             let found = self.merged(q, k, None, &self.voxels_near(q, reach));
             let settled = found.len() == k && found.last().is_some_and(|f| f.distance_sq <= reach * reach);
@@ -55,20 +71,19 @@ impl VoxelGrid {
         if !q.iter().all(|v| v.is_finite()) || radius.is_nan() || radius < 0.0 {
             return None;
         }
-        let found = self.merged(q, 1, Some(radius * radius), &self.voxels_near(q, radius));
+        let limit = Some(radius * radius);
+        // The nearest point of q's own voxel first: no other voxel can hold a nearer one when the
+        // sphere through it stays in that voxel, and none beyond that sphere otherwise.
+        let reach = match self.keys.binary_search(&key_of(q, self.voxel_m)) {
+            Ok(own) => match self.merged(q, 1, limit, &[own]).first() {
+                Some(nearest) if self.in_one_voxel(q, reach_past(nearest)) => return Some(nearest.map_index as usize),
+                Some(nearest) => reach_past(nearest).min(radius),
+                None => radius,
+            },
+            Err(_) => radius,
+        };
+        let found = self.merged(q, 1, limit, &self.voxels_near(q, reach));
         found.first().map(|f| f.map_index as usize)
-    }
-
-    /// How far to search for `k` points around `q`: the distance of voxel `v`'s `k`-th nearest
-    /// point to it, with slack (`None` when the voxel holds fewer than `k` points).
-    fn kth_distance_in(&self, v: usize, q: &Point3<f32>, k: usize) -> Option<f32> {
-        if self.voxels.get(v)?.len < k {
-            return None;
-        }
-        let query_point = [q.x, q.y, q.z];
-        let nearest = self.voxel_tree(v)?.query(&query_point).nearest_n::<SquaredEuclidean<f32>>(NonZero::new(k)?);
-        let kth = nearest.execute().last()?.distance;
-        Some(kth.sqrt() * (1.0 + REACH_SLACK) + f32::EPSILON)
     }
 
     /// The `k` nearest points to `q` over `voxels` (within `max_distance_sq` when given),
@@ -115,6 +130,12 @@ impl VoxelGrid {
         let (lo, hi) = (cell_of(&(q - corner), self.voxel_m), cell_of(&(q + corner), self.voxel_m));
         let [grid_lo, grid_hi] = self.cell_bounds;
         (std::array::from_fn(|a| lo[a].max(grid_lo[a])), std::array::from_fn(|a| hi[a].min(grid_hi[a])))
+    }
+
+    /// Whether the cube of half-side `reach` around `q` meets one voxel cell of the grid only.
+    fn in_one_voxel(&self, q: &Point3<f32>, reach: f32) -> bool {
+        let (lo, hi) = self.cube_cells(q, reach);
+        lo == hi
     }
 
     /// Whether the cube of half-side `reach` around `q` covers every voxel of the grid.

@@ -93,9 +93,16 @@ pub(super) fn key_of(p: &Point3<f32>, voxel_m: f32) -> u64 {
     pack(ix, iy, iz)
 }
 
+/// How far, in voxels, the grid's faces sit off the world's whole coordinates (the golden
+/// ratio's fraction, so that no multiple of a half or a quarter voxel falls within a tenth of one of a face). Maps
+/// put floors at z = 0 and walls at round coordinates: on faces at whole multiples of the voxel,
+/// every point of such a surface would have half its neighbours in the next voxel, and nearly
+/// every neighbour search there would span two.
+const GRID_OFFSET: f32 = 0.381_966;
+
 /// The integer coordinates of the voxel of side `voxel_m` holding `p`.
 pub(super) fn cell_of(p: &Point3<f32>, voxel_m: f32) -> [i64; 3] {
-    let cell = |v: f32| floor_to_int(v / voxel_m);
+    let cell = |v: f32| floor_to_int(v / voxel_m + GRID_OFFSET);
     [cell(p.x), cell(p.y), cell(p.z)]
 }
 
@@ -148,7 +155,7 @@ impl VoxelGrid {
         for (at, &(key, _)) in order.iter().enumerate() {
             if grid.keys.last() != Some(&key) {
                 let [ix, iy, iz] = unpack(key);
-                let centre = |c: i64| (c as f32 + 0.5) * voxel_m;
+                let centre = |c: i64| (c as f32 + 0.5 - GRID_OFFSET) * voxel_m;
                 grid.keys.push(key);
                 grid.voxels.push(Voxel { start: at, len: 0 });
                 grid.centres.push([centre(ix), centre(iy), centre(iz)]);
