@@ -156,17 +156,8 @@ impl LocalizerParams {
         real("verify.tolerance", v.tolerance, Range::Positive)?;
         real("verify.coverage_weight", v.coverage_weight, Range::NonNegative)?;
         real("verify.min_support_share", v.min_support_share, Range::Unit)?;
-        real("final_refine.noise_multiple", f.noise_multiple, Range::Positive)?;
-        real("final_refine.min_threshold_px", f.min_threshold_px, Range::NonNegative)?;
-        real("final_refine.max_threshold_px", f.max_threshold_px, Range::Positive)?;
-        if f.min_threshold_px > f.max_threshold_px {
-            return Err(InvalidParam {
-                key: "final_refine.min_threshold_px",
-                value: f.min_threshold_px.to_string(),
-                range: "at most final_refine.max_threshold_px",
-            });
-        }
-        real("final_refine.loss_scale_px", f.loss_scale_px, Range::Positive)?;
+        real("final_refine.loss_sigmas", f.loss_sigmas, Range::Positive)?;
+        real("final_refine.min_loss_scale_px", f.min_loss_scale_px, Range::Positive)?;
         at_least("final_refine.rounds", f.rounds as u64, 1, "at least 1")?;
         real("final_refine.switch_margin", f.switch_margin, Range::AtLeastOne)?;
         let c = &self.cascade;

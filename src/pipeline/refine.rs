@@ -1,6 +1,9 @@
-//! The last refinement of a pose over every correspondence of the frame that agrees with it,
-//! with a tolerance in pixels taken from the frame's own residuals: rejection (or a budgeted
-//! RANSAC) found the pose on a subset; the correspondences it left out but that fit sharpen it.
+//! The last refinement of a pose over every correspondence of the frame that agrees with it:
+//! rejection (or a budgeted RANSAC) found the pose on a subset; the correspondences it left out
+//! but that fit sharpen it. Every correspondence within PnP's inlier threshold joins, as in
+//! PoseLib's last bundle adjustment over its LO-RANSAC's inliers, weighed by a robust loss whose
+//! scale follows the frame's own pixel noise: a tolerance cut at the noise instead keeps the
+//! matches that happen to agree with a pose slightly off and settles next to it.
 
 use serde::{Deserialize, Serialize};
 
@@ -13,16 +16,15 @@ use crate::pnp::{pose_covariance, refine_pose, PnpSolution, RefineOptions, Robus
 #[serde(default, deny_unknown_fields)]
 pub struct FinalRefine {
     pub enabled: bool,
-    /// A correspondence joins when its reprojection error is below `noise_multiple`·σ̂, where σ̂
-    /// is the pixel noise estimated from the pose's PnP inliers (median residual / 1.1774, the
-    /// Rayleigh median), clamped to [`min_threshold_px`, `max_threshold_px`] (at PnP's reference
-    /// focal length, scaled with it). In pixels, so it holds at any depth range; adaptive, so it
-    /// follows the matcher's accuracy.
-    pub noise_multiple: f64,
-    pub min_threshold_px: f64,
-    pub max_threshold_px: f64,
+    /// The loss over the correspondences within PnP's inlier threshold of the pose.
     pub loss: RobustLoss,
-    pub loss_scale_px: f64,
+    /// The loss's scale, in σ̂: the pixel noise estimated from those correspondences (median
+    /// residual / 1.1774, the Rayleigh median). In pixels of the frame's own noise, so it holds
+    /// at any depth range and follows the matcher's accuracy.
+    pub loss_sigmas: f64,
+    /// The loss's scale at least, pixels at PnP's reference focal length (scaled with it): a
+    /// pose that fits a handful of matches exactly measures no noise.
+    pub min_loss_scale_px: f64,
     pub max_iterations: usize,
     /// Gather-and-refine rounds: each refined pose gathers the agreeing correspondences again,
     /// while their number grows (a pose found on a subset that misses part of the true matches
@@ -47,11 +49,9 @@ impl Default for FinalRefine {
     fn default() -> Self {
         Self {
             enabled: true,
-            noise_multiple: 3.0,
-            min_threshold_px: 1.0,
-            max_threshold_px: 8.0,
-            loss: RobustLoss::Trivial,
-            loss_scale_px: 4.0,
+            loss: RobustLoss::Cauchy,
+            loss_sigmas: 2.0,
+            min_loss_scale_px: 0.5,
             max_iterations: 20,
             rounds: 4,
             alternatives: 4,
@@ -65,10 +65,10 @@ impl Default for FinalRefine {
 const RAYLEIGH_MEDIAN: f64 = 1.177_410_022_515_474_7;
 
 impl FinalRefine {
-    /// Refines `solution` in place on the `correspondences` within the adaptive tolerance of
-    /// its pose; `inlier_threshold_px` is PnP's, which defines the inliers σ̂ is measured on, and
-    /// `pixel_scale` scales the clamp's pixel bounds as PnP's are ([`crate::pnp::PnpParams::for_camera`]).
-    /// Leaves it unchanged when fewer than `min_count` agree or the refinement fails.
+    /// Refines `solution` in place on the `correspondences` within PnP's `inlier_threshold_px`
+    /// of its pose; `pixel_scale` scales the loss's pixel floor as PnP's pixels are
+    /// ([`crate::pnp::PnpParams::for_camera`]). Leaves it unchanged when fewer than `min_count`
+    /// agree or the refinement fails.
     pub fn apply(
         &self,
         k: &Intrinsics,
@@ -80,51 +80,29 @@ impl FinalRefine {
     ) {
         let mut gathered = 0;
         for _ in 0..self.rounds.max(1) {
-            let Some(agreeing) = self.agreeing(k, correspondences, inlier_threshold_px, pixel_scale, &solution.pose)
-            else {
-                return;
-            };
-            if agreeing.len() < min_count || agreeing.len() <= gathered {
+            let agreeing = Agreeing::gather(k, correspondences, inlier_threshold_px, &solution.pose);
+            if agreeing.correspondences.len() < min_count.max(3) || agreeing.correspondences.len() <= gathered {
                 return;
             }
-            gathered = agreeing.len();
-            if !self.refine_on(k, &agreeing, solution) {
+            gathered = agreeing.correspondences.len();
+            let loss_scale_px = (self.loss_sigmas * agreeing.noise_px).max(self.min_loss_scale_px * pixel_scale);
+            if !self.refine_on(k, &agreeing.correspondences, loss_scale_px, solution) {
                 return;
             }
         }
-    }
-
-    /// The correspondences within the adaptive tolerance of `pose` (`None` when fewer than
-    /// three are within PnP's threshold to measure the noise on).
-    fn agreeing<'c>(
-        &self,
-        k: &Intrinsics,
-        correspondences: &'c [Correspondence],
-        inlier_threshold_px: f64,
-        pixel_scale: f64,
-        pose: &nalgebra::Isometry3<f64>,
-    ) -> Option<Vec<&'c Correspondence>> {
-        let to_cam = pose.inverse();
-        let residuals: Vec<f64> =
-            correspondences.iter().map(|c| k.reprojection_error(&to_cam.transform_point(&c.point), &c.pixel)).collect();
-        let mut inlier_residuals: Vec<f64> = residuals.iter().copied().filter(|r| *r < inlier_threshold_px).collect();
-        if inlier_residuals.len() < 3 {
-            return None;
-        }
-        let mid = inlier_residuals.len() / 2;
-        let (_, median, _) = inlier_residuals.select_nth_unstable_by(mid, f64::total_cmp);
-        let sigma = *median / RAYLEIGH_MEDIAN;
-        let (lo, hi) = (self.min_threshold_px * pixel_scale, self.max_threshold_px * pixel_scale);
-        let threshold = (self.noise_multiple * sigma).max(lo).min(hi);
-        Some(correspondences.iter().zip(&residuals).filter(|(_, &r)| r < threshold).map(|(c, _)| c).collect())
     }
 
     /// LM on `agreeing` from `solution`'s pose, into it; whether it succeeded.
-    fn refine_on(&self, k: &Intrinsics, agreeing: &[&Correspondence], solution: &mut PnpSolution) -> bool {
+    fn refine_on(
+        &self,
+        k: &Intrinsics,
+        agreeing: &[&Correspondence],
+        loss_scale_px: f64,
+        solution: &mut PnpSolution,
+    ) -> bool {
         let pixels: Vec<_> = agreeing.iter().map(|c| c.pixel).collect();
         let points: Vec<_> = agreeing.iter().map(|c| c.point).collect();
-        let options =
-            RefineOptions { max_iterations: self.max_iterations, loss: self.loss, loss_scale_px: self.loss_scale_px };
+        let options = RefineOptions { max_iterations: self.max_iterations, loss: self.loss, loss_scale_px };
         let Ok(refined) = refine_pose(k, &pixels, &points, &solution.pose, &options) else { return false };
         if let Ok(cov) = pose_covariance(k, &pixels, &points, &refined.pose) {
             solution.covariance = cov;
@@ -132,6 +110,41 @@ impl FinalRefine {
         solution.pose = refined.pose;
         solution.rmse_px = refined.rmse_px;
         true
+    }
+}
+
+/// The correspondences within an inlier threshold of a pose, and the pixel noise they show.
+struct Agreeing<'c> {
+    correspondences: Vec<&'c Correspondence>,
+    /// σ̂: their median reprojection error over the Rayleigh median (0 when none agree).
+    noise_px: f64,
+}
+
+impl<'c> Agreeing<'c> {
+    fn gather(
+        k: &Intrinsics,
+        correspondences: &'c [Correspondence],
+        threshold_px: f64,
+        pose: &nalgebra::Isometry3<f64>,
+    ) -> Self {
+        let to_cam = pose.inverse();
+        let mut residuals = Vec::new();
+        let agreeing = correspondences
+            .iter()
+            .filter(|c| {
+                let r = k.reprojection_error(&to_cam.transform_point(&c.point), &c.pixel);
+                let agrees = r < threshold_px;
+                if agrees {
+                    residuals.push(r);
+                }
+                agrees
+            })
+            .collect();
+        let noise_px = match residuals.len() {
+            0 => 0.0,
+            n => *residuals.select_nth_unstable_by(n / 2, f64::total_cmp).1 / RAYLEIGH_MEDIAN,
+        };
+        Self { correspondences: agreeing, noise_px }
     }
 }
 
@@ -175,6 +188,17 @@ mod tests {
         corrs: &[Correspondence],
         start: Isometry3<f64>,
     ) -> Isometry3<f64> {
+        refined_within(refine, k, corrs, start, 8.0)
+    }
+
+    /// `refine` applied from `start` with PnP's threshold at `threshold_px`.
+    fn refined_within(
+        refine: &FinalRefine,
+        k: &Intrinsics,
+        corrs: &[Correspondence],
+        start: Isometry3<f64>,
+        threshold_px: f64,
+    ) -> Isometry3<f64> {
         let mut solution = PnpSolution {
             pose: start,
             inliers: vec![true; corrs.len()],
@@ -184,12 +208,12 @@ mod tests {
             covariance: Matrix6::identity(),
             alternatives: Vec::new(),
         };
-        refine.apply(k, corrs, 8.0, 1.0, 6, &mut solution);
+        refine.apply(k, corrs, threshold_px, 1.0, 6, &mut solution);
         solution.pose
     }
 
     #[test]
-    fn the_tolerance_follows_the_frames_noise_and_leaves_outliers_out_at_close_range() {
+    fn the_loss_follows_the_frames_noise_and_leaves_outliers_out_at_close_range() {
         let refine = FinalRefine::default();
         for seed in 1..4 {
             let (k, truth, corrs) = frame(seed);
@@ -200,8 +224,8 @@ mod tests {
                 );
             let error = rotation_error_deg(&refined(&refine, &k, &corrs, start), &truth);
             // A metric tolerance (3 cm at 0.5 m is ~37 px here) would take every outlier in.
-            let all = FinalRefine { min_threshold_px: 40.0, max_threshold_px: 40.0, ..FinalRefine::default() };
-            let with_outliers = rotation_error_deg(&refined(&all, &k, &corrs, start), &truth);
+            let least_squares = FinalRefine { loss: RobustLoss::Trivial, ..FinalRefine::default() };
+            let with_outliers = rotation_error_deg(&refined_within(&least_squares, &k, &corrs, start, 40.0), &truth);
             assert!(error < 0.2, "seed {seed}: {error}° off");
             assert!(error < with_outliers, "seed {seed}: {error}° vs {with_outliers}° with the outliers in");
         }
