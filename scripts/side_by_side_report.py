@@ -28,12 +28,22 @@ class Tier:
         return f"{self.name} tier, {'realistic' if self.realistic_prior else 'shared'} prior"
 
 
+# Synthetic presets whose name is not a tier but whose matches are one: `synth --preset building`
+# is the hard tier's matcher in a building.
+TIER_OF_PRESET = {"synth-building": "hard"}
+
+
 def tier_of(name: str) -> Tier | None:
-    """The tier named in a bag's name (extreme before hard before sift), or None."""
+    """The tier named in a bag's name (extreme before hard before sift), or that of a preset
+    named for its scene (TIER_OF_PRESET), or None."""
     lowered = name.lower()
+    realistic = lowered.endswith(REALISTIC_PRIOR_SUFFIXES)
     for tier in ("extreme", "hard", "sift"):
         if tier in lowered:
-            return Tier(tier, lowered.endswith(REALISTIC_PRIOR_SUFFIXES))
+            return Tier(tier, realistic)
+    for preset, tier in TIER_OF_PRESET.items():
+        if lowered.startswith(preset):
+            return Tier(tier, realistic)
     return None
 
 
