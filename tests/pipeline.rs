@@ -439,4 +439,3 @@ fn in_a_building_the_same_answer_that_fits_better_replaces_pnps() {
     assert!(without > 0.4, "PnP's pose on the kept set: {without}°");
     assert!(with < 0.25, "the sharper pose next to it: {with}°");
 }
-

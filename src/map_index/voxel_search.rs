@@ -41,20 +41,19 @@ impl VoxelGrid {
         if k == 0 || !q.iter().all(|v| v.is_finite()) {
             return Vec::new();
         }
-        // A first answer: the k nearest points of q's own voxel, when it holds k; it is the
+        // A first answer: the k nearest points of q's own voxel (when it holds k), which is the
         // answer when the sphere through the k-th of them stays in that voxel.
         let own = self.keys.binary_search(&key_of(q, self.voxel_m)).ok();
-        let in_own = own.filter(|&v| self.voxels.get(v).is_some_and(|voxel| voxel.len >= k)).map(|v| self.merged(q, k, None, &[v]));
-        let mut reach = match in_own.as_ref().and_then(|found| found.last()) {
-            Some(kth) => {
-                let reach = reach_past(kth);
-                if let Some(found) = in_own.filter(|_| self.in_one_voxel(q, reach)) {
-                    return found.iter().map(|f| f.map_index as usize).collect();
-                }
-                reach
+        let in_own = own
+            .filter(|&v| self.voxels.get(v).is_some_and(|voxel| voxel.len >= k))
+            .map(|v| self.merged(q, k, None, &[v]));
+        let mut reach = self.voxel_m;
+        if let Some(kth) = in_own.as_ref().and_then(|found| found.last()) {
+            reach = reach_past(kth);
+            if let Some(found) = in_own.filter(|_| self.in_one_voxel(q, reach)) {
+                return found.iter().map(|f| f.map_index as usize).collect();
             }
-            None => self.voxel_m,
-        };
+        }
         loop {
             let found = self.merged(q, k, None, &self.voxels_near(q, reach));
             let settled = found.len() == k && found.last().is_some_and(|f| f.distance_sq <= reach * reach);
