@@ -121,6 +121,7 @@ struct Agreeing<'c> {
 }
 
 impl<'c> Agreeing<'c> {
+    /// The `correspondences` whose reprojection error at `pose` is below `threshold_px`.
     fn gather(
         k: &Intrinsics,
         correspondences: &'c [Correspondence],
