@@ -78,17 +78,21 @@ impl FinalRefine {
         min_count: usize,
         solution: &mut PnpSolution,
     ) {
-        let mut gathered = 0;
+        let (mut gathered, mut refined) = (0, false);
         for _ in 0..self.rounds.max(1) {
             let agreeing = Agreeing::gather(k, correspondences, inlier_threshold_px, &solution.pose);
             if agreeing.correspondences.len() < min_count.max(3) || agreeing.correspondences.len() <= gathered {
-                return;
+                break;
             }
             gathered = agreeing.correspondences.len();
             let loss_scale_px = (self.loss_sigmas * agreeing.noise_px).max(self.min_loss_scale_px * pixel_scale);
             if !self.refine_on(k, &agreeing.correspondences, loss_scale_px, solution) {
-                return;
+                break;
             }
+            refined = true;
+        }
+        if refined {
+            measure_covariance(k, correspondences, inlier_threshold_px, solution);
         }
     }
 
@@ -104,12 +108,32 @@ impl FinalRefine {
         let points: Vec<_> = agreeing.iter().map(|c| c.point).collect();
         let options = RefineOptions { max_iterations: self.max_iterations, loss: self.loss, loss_scale_px };
         let Ok(refined) = refine_pose(k, &pixels, &points, &solution.pose, &options) else { return false };
-        if let Ok(cov) = pose_covariance(k, &pixels, &points, &refined.pose) {
-            solution.covariance = cov;
-        }
         solution.pose = refined.pose;
         solution.rmse_px = refined.rmse_px;
         true
+    }
+}
+
+/// The covariance of the refined pose is measured on the matches within this many σ̂ of it
+/// (98.9 % of Gaussian pixel noise): the robust loss weighed the others near zero, and their
+/// residuals would inflate the noise the covariance scales with.
+const COVARIANCE_SIGMAS: f64 = 3.0;
+
+/// `solution`'s covariance from the `correspondences` within [`COVARIANCE_SIGMAS`]·σ̂ of its
+/// pose (σ̂ measured on those within `inlier_threshold_px`); left as it was when too few.
+fn measure_covariance(
+    k: &Intrinsics,
+    correspondences: &[Correspondence],
+    inlier_threshold_px: f64,
+    solution: &mut PnpSolution,
+) {
+    let noise_px = Agreeing::gather(k, correspondences, inlier_threshold_px, &solution.pose).noise_px;
+    let within =
+        Agreeing::gather(k, correspondences, (COVARIANCE_SIGMAS * noise_px).min(inlier_threshold_px), &solution.pose);
+    let pixels: Vec<_> = within.correspondences.iter().map(|c| c.pixel).collect();
+    let points: Vec<_> = within.correspondences.iter().map(|c| c.point).collect();
+    if let Ok(cov) = pose_covariance(k, &pixels, &points, &solution.pose) {
+        solution.covariance = cov;
     }
 }
 
@@ -247,6 +271,41 @@ mod tests {
             let (after_one, after_rounds) = (solve(&one), solve(&rounds));
             assert!(after_rounds < 0.05, "seed {seed}: {after_rounds}° off after the rounds");
             assert!(after_rounds < 0.5 * after_one, "seed {seed}: {after_rounds}° vs {after_one}° after one gathering");
+        }
+    }
+
+    #[test]
+    fn the_covariance_is_measured_on_the_matches_the_loss_keeps() {
+        // 150 matches with ≤ 1 px of noise and 30 near misses 5–7 px off, inside PnP's 8 px:
+        // the Cauchy loss weighs the near misses near zero, and so must the covariance's noise.
+        for seed in 1..4 {
+            let (k, truth, mut corrs) = frame(seed);
+            corrs.truncate(150);
+            let mut lcg = crate::rng::Lcg64(seed + 100);
+            for c in corrs.clone().iter().take(30) {
+                let angle = std::f64::consts::TAU * lcg.next_f64();
+                let offset = nalgebra::Vector2::new(angle.cos(), angle.sin()) * (5.0 + 2.0 * lcg.next_f64());
+                corrs.push(Correspondence { pixel: c.pixel + offset, ..*c });
+            }
+            let mut solution = PnpSolution {
+                pose: truth,
+                inliers: vec![true; corrs.len()],
+                num_inliers: corrs.len(),
+                iterations: 0,
+                rmse_px: 0.0,
+                covariance: Matrix6::identity(),
+                alternatives: Vec::new(),
+            };
+            FinalRefine::default().apply(&k, &corrs, 8.0, 1.0, 6, &mut solution);
+            let on = |set: &[Correspondence]| {
+                let pixels: Vec<_> = set.iter().map(|c| c.pixel).collect();
+                let points: Vec<_> = set.iter().map(|c| c.point).collect();
+                pose_covariance(&k, &pixels, &points, &solution.pose).unwrap().trace()
+            };
+            let (true_ones, all_within) = (on(&corrs[..150]), on(&corrs));
+            let measured = solution.covariance.trace();
+            assert!((0.7..1.4).contains(&(measured / true_ones)), "seed {seed}: {measured} vs {true_ones}");
+            assert!(all_within > 2.0 * measured, "seed {seed}: {all_within} vs {measured}");
         }
     }
 }
