@@ -43,8 +43,8 @@ impl VoxelGrid {
         }
         // A first answer: the k nearest points of q's own voxel (when it holds k), which is the
         // answer when the sphere through the k-th of them stays in that voxel.
-        let own = self.keys.binary_search(&key_of(q, self.voxel_m)).ok();
-        let in_own = own
+        let in_own = self
+            .own_voxel(q)
             .filter(|&v| self.voxels.get(v).is_some_and(|voxel| voxel.len >= k))
             .map(|v| self.merged(q, k, None, &[v]));
         let mut reach = self.voxel_m;
@@ -73,13 +73,13 @@ impl VoxelGrid {
         let limit = Some(radius * radius);
         // The nearest point of q's own voxel first: no other voxel can hold a nearer one when the
         // sphere through it stays in that voxel, and none beyond that sphere otherwise.
-        let reach = match self.keys.binary_search(&key_of(q, self.voxel_m)) {
-            Ok(own) => match self.merged(q, 1, limit, &[own]).first() {
+        let reach = match self.own_voxel(q) {
+            Some(own) => match self.merged(q, 1, limit, &[own]).first() {
                 Some(nearest) if self.in_one_voxel(q, reach_past(nearest)) => return Some(nearest.map_index as usize),
                 Some(nearest) => reach_past(nearest).min(radius),
                 None => radius,
             },
-            Err(_) => radius,
+            None => radius,
         };
         let found = self.merged(q, 1, limit, &self.voxels_near(q, reach));
         found.first().map(|f| f.map_index as usize)
@@ -131,6 +131,11 @@ impl VoxelGrid {
         (std::array::from_fn(|a| lo[a].max(grid_lo[a])), std::array::from_fn(|a| hi[a].min(grid_hi[a])))
     }
 
+    /// The occupied voxel holding `q`, if any.
+    fn own_voxel(&self, q: &Point3<f32>) -> Option<usize> {
+        self.keys.binary_search(&key_of(q, self.voxel_m)).ok()
+    }
+
     /// Whether the cube of half-side `reach` around `q` meets one voxel cell of the grid only.
     fn in_one_voxel(&self, q: &Point3<f32>, reach: f32) -> bool {
         let (lo, hi) = self.cube_cells(q, reach);
@@ -174,7 +179,7 @@ impl VoxelGrid {
     /// across its voxel's face sees a larger gap; for the median over many samples (the map's
     /// point spacing) that is noise, as the voxels are far wider than the spacing.
     pub(super) fn gap_in_voxel(&self, map_index: usize, p: &Point3<f32>) -> Option<f32> {
-        let v = self.keys.binary_search(&key_of(p, self.voxel_m)).ok()?;
+        let v = self.own_voxel(p)?;
         let Voxel { start, len } = *self.voxels.get(v)?;
         let range = start..start + len;
         let (x, y, z, ids) = (

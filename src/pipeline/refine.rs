@@ -104,8 +104,7 @@ impl FinalRefine {
         loss_scale_px: f64,
         solution: &mut PnpSolution,
     ) -> bool {
-        let pixels: Vec<_> = agreeing.iter().map(|c| c.pixel).collect();
-        let points: Vec<_> = agreeing.iter().map(|c| c.point).collect();
+        let (pixels, points): (Vec<_>, Vec<_>) = agreeing.iter().map(|c| (c.pixel, c.point)).unzip();
         let options = RefineOptions { max_iterations: self.max_iterations, loss: self.loss, loss_scale_px };
         let Ok(refined) = refine_pose(k, &pixels, &points, &solution.pose, &options) else { return false };
         solution.pose = refined.pose;
@@ -127,11 +126,9 @@ fn measure_covariance(
     inlier_threshold_px: f64,
     solution: &mut PnpSolution,
 ) {
-    let noise_px = Agreeing::gather(k, correspondences, inlier_threshold_px, &solution.pose).noise_px;
-    let within =
-        Agreeing::gather(k, correspondences, (COVARIANCE_SIGMAS * noise_px).min(inlier_threshold_px), &solution.pose);
-    let pixels: Vec<_> = within.correspondences.iter().map(|c| c.pixel).collect();
-    let points: Vec<_> = within.correspondences.iter().map(|c| c.point).collect();
+    let agreeing = Agreeing::gather(k, correspondences, inlier_threshold_px, &solution.pose);
+    let (pixels, points): (Vec<_>, Vec<_>) =
+        agreeing.within(COVARIANCE_SIGMAS * agreeing.noise_px).map(|c| (c.pixel, c.point)).unzip();
     if let Ok(cov) = pose_covariance(k, &pixels, &points, &solution.pose) {
         solution.covariance = cov;
     }
@@ -140,6 +137,8 @@ fn measure_covariance(
 /// The correspondences within an inlier threshold of a pose, and the pixel noise they show.
 struct Agreeing<'c> {
     correspondences: Vec<&'c Correspondence>,
+    /// Their reprojection errors at the pose, in the same order.
+    residuals: Vec<f64>,
     /// σ̂: their median reprojection error over the Rayleigh median (0 when none agree).
     noise_px: f64,
 }
@@ -153,23 +152,22 @@ impl<'c> Agreeing<'c> {
         pose: &nalgebra::Isometry3<f64>,
     ) -> Self {
         let to_cam = pose.inverse();
-        let mut residuals = Vec::new();
-        let agreeing = correspondences
+        let (agreeing, residuals): (Vec<_>, Vec<_>) = correspondences
             .iter()
-            .filter(|c| {
-                let r = k.reprojection_error(&to_cam.transform_point(&c.point), &c.pixel);
-                let agrees = r < threshold_px;
-                if agrees {
-                    residuals.push(r);
-                }
-                agrees
-            })
-            .collect();
-        let noise_px = match residuals.len() {
+            .map(|c| (c, k.reprojection_error(&to_cam.transform_point(&c.point), &c.pixel)))
+            .filter(|&(_, r)| r < threshold_px)
+            .unzip();
+        let mut sorted = residuals.clone();
+        let noise_px = match sorted.len() {
             0 => 0.0,
-            n => *residuals.select_nth_unstable_by(n / 2, f64::total_cmp).1 / RAYLEIGH_MEDIAN,
+            n => *sorted.select_nth_unstable_by(n / 2, f64::total_cmp).1 / RAYLEIGH_MEDIAN,
         };
-        Self { correspondences: agreeing, noise_px }
+        Self { correspondences: agreeing, residuals, noise_px }
+    }
+
+    /// Those of them whose reprojection error is also below `threshold_px`.
+    fn within(&self, threshold_px: f64) -> impl Iterator<Item = &'c Correspondence> + '_ {
+        self.correspondences.iter().zip(&self.residuals).filter(move |&(_, &r)| r < threshold_px).map(|(c, _)| *c)
     }
 }
 
@@ -216,6 +214,19 @@ mod tests {
         refined_within(refine, k, corrs, start, 8.0)
     }
 
+    /// A solution at `pose` over `count` correspondences, before the last refinement.
+    fn unrefined(pose: Isometry3<f64>, count: usize) -> PnpSolution {
+        PnpSolution {
+            pose,
+            inliers: vec![true; count],
+            num_inliers: count,
+            iterations: 0,
+            rmse_px: 0.0,
+            covariance: Matrix6::identity(),
+            alternatives: Vec::new(),
+        }
+    }
+
     /// `refine` applied from `start` with PnP's threshold at `threshold_px`.
     fn refined_within(
         refine: &FinalRefine,
@@ -224,15 +235,7 @@ mod tests {
         start: Isometry3<f64>,
         threshold_px: f64,
     ) -> Isometry3<f64> {
-        let mut solution = PnpSolution {
-            pose: start,
-            inliers: vec![true; corrs.len()],
-            num_inliers: corrs.len(),
-            iterations: 0,
-            rmse_px: 0.0,
-            covariance: Matrix6::identity(),
-            alternatives: Vec::new(),
-        };
+        let mut solution = unrefined(start, corrs.len());
         refine.apply(k, corrs, threshold_px, 1.0, 6, &mut solution);
         solution.pose
     }
@@ -287,15 +290,7 @@ mod tests {
                 let offset = nalgebra::Vector2::new(angle.cos(), angle.sin()) * (5.0 + 2.0 * lcg.next_f64());
                 corrs.push(Correspondence { pixel: c.pixel + offset, ..*c });
             }
-            let mut solution = PnpSolution {
-                pose: truth,
-                inliers: vec![true; corrs.len()],
-                num_inliers: corrs.len(),
-                iterations: 0,
-                rmse_px: 0.0,
-                covariance: Matrix6::identity(),
-                alternatives: Vec::new(),
-            };
+            let mut solution = unrefined(truth, corrs.len());
             FinalRefine::default().apply(&k, &corrs, 8.0, 1.0, 6, &mut solution);
             let on = |set: &[Correspondence]| {
                 let pixels: Vec<_> = set.iter().map(|c| c.pixel).collect();
