@@ -96,17 +96,20 @@ impl Default for ScaleShiftParams {
     }
 }
 
-/// One voting pair: its rays, prior coordinates and map length, and for depth space the terms
-/// of its image length as a quadratic in the shift.
+/// One voting pair: its prior coordinates, map length and correspondence indices, and for
+/// depth space the terms of its image length as a quadratic in the shift (and in the scale:
+/// the refinement's residuals). 64 bytes, so that a frame's thousands of pairs, read once per
+/// candidate shift, stay in the core's cache.
 struct PairTerms {
-    ri: Vector3<f64>,
-    rj: Vector3<f64>,
     aa: f64,
-    ab: f64,
+    two_ab: f64,
     bb: f64,
     xi: f64,
     xj: f64,
+    map_len: f64,
     log_map_len2: f64,
+    i: u32,
+    j: u32,
 }
 
 /// Depth up to scale under candidate shift `t`: x + t, or 1/(x + t) in disparity space;
@@ -160,21 +163,22 @@ pub fn estimate_scale_shift(
             let (ri, rj, xi, xj) = (rays[i as usize], rays[j as usize], prior[i as usize], prior[j as usize]);
             let (a, b) = (ri * xi - rj * xj, ri - rj);
             PairTerms {
-                ri,
-                rj,
                 aa: a.norm_squared(),
-                ab: a.dot(&b),
+                two_ab: 2.0 * a.dot(&b),
                 bb: b.norm_squared(),
                 xi,
                 xj,
+                map_len: len,
                 log_map_len2: (len * len).ln(),
+                i,
+                j,
             }
         })
         .collect();
 
     let vote = |t: f64| -> Option<Vote> {
         let mut votes = ScaleVotes::new(params.log_scale_window);
-        cast_votes(&terms, space, t, &mut votes);
+        cast_votes(&terms, rays, space, t, &mut votes);
         votes.densest().map(|(count, log_scale)| Vote { count, scale: log_scale.exp(), shift: t })
     };
     let best = search_shift(&vote, params.shift_range * median_x, params)?;
@@ -187,15 +191,14 @@ pub fn estimate_scale_shift(
             ScaleShift { scale: 1.0 / best.scale, shift: best.shift / best.scale, support: best.count, space }
         }
     };
-    let prior_pairs = PriorPairs { rays, prior, pairs: &pairs, map_len: &map_len, min_len };
-    refine_scale_shift(&prior_pairs, params, &mut estimate);
+    refine_scale_shift(&terms, rays, params, &mut estimate);
     (estimate.scale.is_finite() && estimate.scale > 0.0 && estimate.shift.is_finite()).then_some(estimate)
 }
 
 /// Every pair's vote for log(scale) = ½·(log ‖q_i − q_j‖² − log ‖o_i − o_j‖²) at shift `t`, into
 /// `votes` (cleared first); a pair votes when both its depths are positive. One loop per space,
 /// so the hot depth-space one tests no space per pair.
-fn cast_votes(terms: &[PairTerms], space: PriorSpace, t: f64, votes: &mut ScaleVotes) {
+fn cast_votes(terms: &[PairTerms], rays: &[Vector3<f64>], space: PriorSpace, t: f64, votes: &mut ScaleVotes) {
     votes.clear();
     match space {
         PriorSpace::Depth => {
@@ -203,7 +206,7 @@ fn cast_votes(terms: &[PairTerms], space: PriorSpace, t: f64, votes: &mut ScaleV
                 if c.xi + t > 0.0 && c.xj + t > 0.0 {
                     // ‖a + t·b‖², a = r_i x_i − r_j x_j and b = r_i − r_j formed once (in f64: the
                     // difference of neighbouring pixels' rays is small, and its digits must survive).
-                    let img_len2 = c.aa + t * (2.0 * c.ab + t * c.bb);
+                    let img_len2 = c.aa + t * (c.two_ab + t * c.bb);
                     if img_len2 > 1e-18 {
                         votes.add(0.5 * (c.log_map_len2 - img_len2.ln()));
                     }
@@ -213,7 +216,8 @@ fn cast_votes(terms: &[PairTerms], space: PriorSpace, t: f64, votes: &mut ScaleV
         PriorSpace::Disparity => {
             for c in terms {
                 let (Some(ui), Some(uj)) = (unit_depth(space, c.xi, t), unit_depth(space, c.xj, t)) else { continue };
-                let img_len2 = (c.ri * ui - c.rj * uj).norm_squared();
+                let (Some(ri), Some(rj)) = (rays.get(c.i as usize), rays.get(c.j as usize)) else { continue };
+                let img_len2 = (ri * ui - rj * uj).norm_squared();
                 if img_len2 > 1e-18 {
                     votes.add(0.5 * (c.log_map_len2 - img_len2.ln()));
                 }
@@ -255,46 +259,18 @@ fn search_shift(vote: &(impl Fn(f64) -> Option<Vote> + Sync), range: f64, params
     best_of(best, fine.collect())
 }
 
-/// The voting pairs with what the refinement needs of them.
-struct PriorPairs<'a> {
-    rays: &'a [Vector3<f64>],
-    prior: &'a [f64],
-    pairs: &'a [(u32, u32)],
-    map_len: &'a [f64],
-    min_len: f64,
-}
-
 /// Gauss–Newton on (scale, shift) minimising Σ (‖z_i r_i − z_j r_j‖ − ‖q_i − q_j‖)² over the
 /// pairs that agree with the current estimate (relative residual below the vote window).
-fn refine_scale_shift(data: &PriorPairs, params: &ScaleShiftParams, est: &mut ScaleShift) {
+fn refine_scale_shift(terms: &[PairTerms], rays: &[Vector3<f64>], params: &ScaleShiftParams, est: &mut ScaleShift) {
     let tol = params.log_scale_window;
     for _ in 0..params.refine_iterations {
         let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
         let mut used = 0usize;
-        for (p, &(i, j)) in data.pairs.iter().enumerate() {
-            let (i, j) = (i as usize, j as usize);
-            let len_map = data.map_len[p];
-            if len_map < data.min_len || len_map <= 0.0 {
+        for c in terms {
+            let Some(PairResidual { r, js, jt }) = pair_residual(c, rays, est) else { continue };
+            if r.abs() > tol * c.map_len {
                 continue;
             }
-            let (xi, xj) = (data.prior[i], data.prior[j]);
-            let (zi, zj) = (est.depth(xi), est.depth(xj));
-            if !(zi > 0.0 && zj > 0.0 && zi.is_finite() && zj.is_finite()) {
-                continue;
-            }
-            let (ri, rj) = (data.rays[i], data.rays[j]);
-            let diff = ri * zi - rj * zj;
-            let len = diff.norm();
-            if len < 1e-9 {
-                continue;
-            }
-            let r = len - len_map;
-            if r.abs() > tol * len_map {
-                continue;
-            }
-            let ((si, ti), (sj, tj)) = (est.gradient(xi), est.gradient(xj));
-            let js = diff.dot(&(ri * si - rj * sj)) / len;
-            let jt = diff.dot(&(ri * ti - rj * tj)) / len;
             a11 += js * js;
             a12 += js * jt;
             a22 += jt * jt;
@@ -318,6 +294,49 @@ fn refine_scale_shift(data: &PriorPairs, params: &ScaleShiftParams, est: &mut Sc
         }
         if ds.abs() < 1e-6 * est.scale.abs() && dt.abs() < 1e-6 * est.shift.abs().max(1e-6) {
             break;
+        }
+    }
+}
+
+/// A pair's image length under `est` minus its map length, and that residual's derivatives by
+/// scale and shift.
+struct PairResidual {
+    r: f64,
+    js: f64,
+    jt: f64,
+}
+
+/// [`PairResidual`] of pair `c`; `None` where a depth is not positive or the image length vanishes.
+/// In depth space the image difference is scale·a + shift·b (a = r_i x_i − r_j x_j, b = r_i − r_j),
+/// so its length and derivatives come from the pair's a·a, a·b, b·b alone.
+fn pair_residual(c: &PairTerms, rays: &[Vector3<f64>], est: &ScaleShift) -> Option<PairResidual> {
+    let (zi, zj) = (est.depth(c.xi), est.depth(c.xj));
+    if !(zi > 0.0 && zj > 0.0 && zi.is_finite() && zj.is_finite()) {
+        return None;
+    }
+    match est.space {
+        PriorSpace::Depth => {
+            let (s, h) = (est.scale, est.shift);
+            let ab = 0.5 * c.two_ab;
+            let (diff_a, diff_b) = (s * c.aa + h * ab, s * ab + h * c.bb);
+            let len2 = s * diff_a + h * diff_b;
+            if !(len2 >= 1e-18) {
+                return None;
+            }
+            let len = len2.sqrt();
+            Some(PairResidual { r: len - c.map_len, js: diff_a / len, jt: diff_b / len })
+        }
+        PriorSpace::Disparity => {
+            let (ri, rj) = (rays.get(c.i as usize)?, rays.get(c.j as usize)?);
+            let diff = ri * zi - rj * zj;
+            let len = diff.norm();
+            if len < 1e-9 {
+                return None;
+            }
+            let ((si, ti), (sj, tj)) = (est.gradient(c.xi), est.gradient(c.xj));
+            let js = diff.dot(&(ri * si - rj * sj)) / len;
+            let jt = diff.dot(&(ri * ti - rj * tj)) / len;
+            Some(PairResidual { r: len - c.map_len, js, jt })
         }
     }
 }
