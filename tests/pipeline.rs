@@ -223,6 +223,34 @@ fn easy_frames_end_on_the_fast_path_and_hard_ones_do_not() {
     }
 }
 
+/// A frame after one the fast path did not settle builds its geometry beside the fast path (on
+/// another core); what it returns is what it returns with the two one after the other (as for a
+/// localizer's first frame), whether the fast path then settles it or not.
+#[test]
+fn geometry_beside_the_fast_path_changes_no_result() {
+    let params = LocalizerParams { method: Method::Consistency, ..LocalizerParams::default() };
+    let hard = generate(&SynthConfig { frames: 2, seed: 9, ..SynthConfig::preset("hard").unwrap() });
+    let sift = generate(&SynthConfig { frames: 1, seed: 9, ..SynthConfig::preset("sift").unwrap() });
+    let last_of = |frames: &[&Frame], map: &MapCloud| {
+        let mut localizer = Localizer::new(params.clone()).expect("a localizer");
+        localizer.set_map(map);
+        frames.iter().map(|f| localizer.process(f)).last().expect("a frame")
+    };
+    let (unsettled, next) = (&hard.frames[0], &hard.frames[1]);
+    assert!(!last_of(&[unsettled], &hard.map).fast_path);
+    for (frame, map, settles) in [(next, &hard.map, false), (&sift.frames[0], &sift.map, true)] {
+        let alone = last_of(&[frame], map);
+        let beside = last_of(&[unsettled, frame], map);
+        assert_eq!(beside.fast_path, settles);
+        assert!(alone.pose.is_some());
+        assert_eq!(alone.pose, beside.pose);
+        assert_eq!(alone.kept, beside.kept);
+        assert_eq!(alone.num_inliers, beside.num_inliers);
+        assert_eq!(alone.scale_shift, beside.scale_shift);
+        assert_eq!(alone.fast_path_check, beside.fast_path_check);
+    }
+}
+
 /// `replay` tells its caller, frame by frame, whether the frame registered (the progress bar's
 /// running RR); over the bag that is `eval`'s RR.
 #[test]

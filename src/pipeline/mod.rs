@@ -6,7 +6,8 @@ use std::time::Instant;
 use nalgebra::{Isometry3, Matrix6};
 use serde::{Deserialize, Serialize};
 
-use crate::consistency::ScaleShift;
+use crate::consistency::{ScaleShift, ScaleShiftParams};
+use crate::geometry::DepthKind;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::pnp::{solve_pnp_ransac, Guidance, PnpError, PnpParams, PnpSolution, PoseGate, Problem};
 use crate::reject::network::{NetworkError, NetworkRejector};
@@ -157,6 +158,33 @@ pub enum SetupError {
     Network(#[from] NetworkError),
 }
 
+/// How a frame's geometry is built: the prior's depth kind and alignment for the method, and
+/// whether a rejector needs it at all.
+struct GeometryStep<'a> {
+    depth_kind: DepthKind,
+    align: Option<&'a ScaleShiftParams>,
+    needed: bool,
+}
+
+impl<'a> GeometryStep<'a> {
+    fn of(params: &'a LocalizerParams, has_rejector: bool) -> Self {
+        let align = match params.method {
+            Method::AngleI2p => params.network.alignment(&params.align),
+            _ => Some(&params.align),
+        };
+        Self { depth_kind: params.depth_kind, align, needed: has_rejector }
+    }
+
+    /// Into `scratch.geometry` (empty when no rejector needs it).
+    fn build(&self, frame: &Frame, scratch: &mut FrameScratch) {
+        if self.needed {
+            scratch.geometry.rebuild(frame, self.depth_kind, self.align, &mut scratch.geometry_work);
+        } else {
+            scratch.geometry = FrameGeometry::default();
+        }
+    }
+}
+
 /// Localizes frames; holds the reusable per-frame buffers.
 pub struct Localizer {
     params: LocalizerParams,
@@ -167,6 +195,9 @@ pub struct Localizer {
     scratch: FrameScratch,
     /// Poses outside this gate are not considered (e.g. an `/initialpose` prior).
     pose_gate: Option<PoseGate>,
+    /// Whether the next frame builds its geometry beside the fast path (the last frame was not
+    /// settled by it).
+    overlap_fast_path: bool,
 }
 
 impl Localizer {
@@ -184,6 +215,7 @@ impl Localizer {
             render_map: RenderMap::default(),
             scratch: FrameScratch::default(),
             pose_gate: None,
+            overlap_fast_path: false,
         })
     }
 
@@ -221,23 +253,68 @@ impl Localizer {
         let mut out = Localization::nothing_yet(frame, self.params.method);
         if let Err(failure) = self.validate(frame) {
             out.failure = Some(failure);
+        } else if !self.fast_path_applies() {
+            self.build_geometry(frame, &mut out);
+            self.reject_and_solve(frame, &mut out);
+        } else if self.overlap_fast_path {
+            self.fast_path_beside_geometry(frame, &mut out);
         } else if !self.fast_path(frame, &mut out) {
-            self.full_path(frame, &mut out);
+            self.build_geometry(frame, &mut out);
+            self.reject_and_solve(frame, &mut out);
         }
+        // A frame the fast path did not settle predicts the next one: it builds its geometry
+        // while the fast path runs.
+        self.overlap_fast_path = self.fast_path_applies() && !out.fast_path && out.failure.is_none();
         out.timings.total_ms = ms_since(start);
         out
+    }
+
+    /// Whether frames try the cascade's fast path first.
+    fn fast_path_applies(&self) -> bool {
+        self.params.cascade.enabled && self.params.method != Method::Ransac
     }
 
     /// The cascade's first step: a budgeted LO-RANSAC on the raw correspondences. Whether it
     /// settled the frame (then `out` holds the pose and its RANSAC inliers as the kept set).
     fn fast_path(&self, frame: &Frame, out: &mut Localization) -> bool {
-        let p = &self.params;
-        if !p.cascade.enabled || p.method == Method::Ransac {
-            return false;
-        }
         let t = Instant::now();
-        let settled = p.cascade.settle(frame, &self.pnp_params(frame), self.pose_gate.as_ref());
+        let settled = self.params.cascade.settle(frame, &self.pnp_params(frame), self.pose_gate.as_ref());
         out.timings.fast_path_ms = ms_since(t);
+        self.take_fast_path(frame, settled, out)
+    }
+
+    /// The fast path on this thread and the frame's geometry on another, side by side (the
+    /// fast path is serial; the geometry's serial steps leave the other core idle): for a frame
+    /// after one the fast path did not settle. The outputs are those of the fast path first and
+    /// the geometry after; when the fast path settles the frame after all, its geometry was
+    /// built for nothing.
+    fn fast_path_beside_geometry(&mut self, frame: &Frame, out: &mut Localization) {
+        let pnp = self.pnp_params(frame);
+        let (cascade, gate) = (&self.params.cascade, self.pose_gate.as_ref());
+        let geometry = GeometryStep::of(&self.params, self.rejector.is_some());
+        let scratch = &mut self.scratch;
+        let ((settled, fast_path_ms), geometry_ms) = rayon::join(
+            || {
+                let t = Instant::now();
+                (cascade.settle(frame, &pnp, gate), ms_since(t))
+            },
+            || {
+                let t = Instant::now();
+                geometry.build(frame, scratch);
+                ms_since(t)
+            },
+        );
+        out.timings.fast_path_ms = fast_path_ms;
+        if !self.take_fast_path(frame, settled, out) {
+            out.scale_shift = self.scratch.geometry.scale_shift;
+            out.timings.geometry_ms = geometry_ms;
+            self.reject_and_solve(frame, out);
+        }
+    }
+
+    /// The fast path's outcome into `out`: its pose when it `settled` the frame (true), else
+    /// what it measured (false).
+    fn take_fast_path(&self, frame: &Frame, settled: Result<PnpSolution, FastPathCheck>, out: &mut Localization) -> bool {
         let solution = match settled {
             Ok(solution) => solution,
             Err(check) => {
@@ -251,23 +328,18 @@ impl Localizer {
         true
     }
 
-    /// Rejection, then PnP on the kept correspondences (sampled in score order), verified
-    /// against the prior.
-    fn full_path(&mut self, frame: &Frame, out: &mut Localization) {
-        // Geometry: rays, prior depths and the aligned image cloud (only a rejector needs them).
+    /// Geometry: rays, prior depths and the aligned image cloud (only a rejector needs them).
+    fn build_geometry(&mut self, frame: &Frame, out: &mut Localization) {
         let t = Instant::now();
-        let align = match self.params.method {
-            Method::AngleI2p => self.params.network.alignment(&self.params.align),
-            _ => Some(&self.params.align),
-        };
-        let scratch = &mut self.scratch;
-        match self.rejector {
-            Some(_) => scratch.geometry.rebuild(frame, self.params.depth_kind, align, &mut scratch.geometry_work),
-            None => scratch.geometry = FrameGeometry::default(),
-        }
-        out.scale_shift = scratch.geometry.scale_shift;
+        GeometryStep::of(&self.params, self.rejector.is_some()).build(frame, &mut self.scratch);
+        out.scale_shift = self.scratch.geometry.scale_shift;
         out.timings.geometry_ms = ms_since(t);
+    }
 
+    /// Rejection on the frame's geometry (built), then PnP on the kept correspondences (sampled
+    /// in score order), verified against the prior.
+    fn reject_and_solve(&mut self, frame: &Frame, out: &mut Localization) {
+        let scratch = &mut self.scratch;
         // Rejection: scores and the kept subset, best first.
         let t = Instant::now();
         let rejection = match self.rejector.as_mut().map(|r| r.reject(&scratch.geometry)) {
