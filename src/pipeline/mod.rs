@@ -373,7 +373,15 @@ impl Localizer {
         };
         let pnp = self.pnp_params(frame);
         let problem = Problem { intrinsics: &frame.intrinsics, pixels: &scratch.pixels, points: &scratch.points };
-        let solved = solve_pnp_ransac(&problem, &guidance, &pnp);
+        // The last choice's ranked search needs only the scores: it runs beside PnP (both are
+        // serial), and is dropped if PnP finds nothing.
+        let last_choice = rejection.filter(|_| self.params.final_refine.enabled);
+        let ranked_iterations = self.ranked_iterations();
+        let gate = self.pose_gate.as_ref();
+        let (solved, ranked) = rayon::join(
+            || solve_pnp_ransac(&problem, &guidance, &pnp),
+            || last_choice.and_then(|r| arbiter::ranked_search(frame, &r.scores, &pnp, ranked_iterations, gate)),
+        );
         let subset = &scratch.subset;
         let with_scores = |r: &crate::reject::Rejection| -> Vec<Correspondence> {
             subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect()
@@ -383,7 +391,6 @@ impl Localizer {
                 if rejection.is_some() && self.params.final_refine.enabled {
                     self.refine_on_all(frame, &mut solution);
                     let fast_path_pose = out.fast_path_check.and_then(|c| c.pose);
-                    let ranked = rejection.and_then(|r| self.ranked_search(frame, &r.scores));
                     let poses: Vec<_> = fast_path_pose.into_iter().chain(ranked).collect();
                     self.arbitrate_on_all(frame, &poses, &mut solution);
                 }
@@ -474,12 +481,15 @@ impl Localizer {
         );
     }
 
-    /// The last choice's search over every correspondence in the rejector's `scores` order
-    /// ([`arbiter::ranked_search`]), when the last choice is on.
-    fn ranked_search(&self, frame: &Frame, scores: &[f32]) -> Option<Isometry3<f64>> {
+    /// Hypotheses of the last choice's search over every correspondence in the rejector's
+    /// scores order ([`arbiter::ranked_search`]): none when the last choice is off.
+    fn ranked_iterations(&self) -> usize {
         let refine = &self.params.final_refine;
-        let iterations = if refine.alternatives > 0 { refine.ranked_iterations } else { 0 };
-        arbiter::ranked_search(frame, scores, &self.pnp_params(frame), iterations, self.pose_gate.as_ref())
+        if refine.alternatives > 0 {
+            refine.ranked_iterations
+        } else {
+            0
+        }
     }
 
     /// The pool's first `final_refine.alternatives` other candidates and `poses` (the fast
