@@ -1,0 +1,136 @@
+//! What the localizer returns for one frame: the pose and what it is made of, per-stage
+//! timings, and why a frame has no pose.
+
+use nalgebra::{Isometry3, Matrix6};
+use serde::{Deserialize, Serialize};
+
+use super::cascade::FastPathCheck;
+use crate::consistency::ScaleShift;
+use crate::frame::{Correspondence, Frame, Stamp};
+use crate::pnp::PnpError;
+use crate::reject::RejectError;
+
+/// How outliers are rejected before PnP.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// No rejection: LO-RANSAC on the raw correspondences (the baseline row).
+    Ransac,
+    /// Spectral scoring of the pairwise consistency matrix, then score-ordered LO-RANSAC.
+    Consistency,
+    /// The learned Angle-I2P network (ONNX Runtime), then score-ordered LO-RANSAC.
+    #[default]
+    #[value(name = "angle-i2p")]
+    #[serde(rename = "angle-i2p")]
+    AngleI2p,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Ransac => "ransac",
+            Method::Consistency => "consistency",
+            Method::AngleI2p => "angle-i2p",
+        }
+    }
+}
+
+/// Wall-clock time of each stage, milliseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct StageTimings {
+    /// The cascade's budgeted LO-RANSAC (the whole PnP when it settles the frame).
+    pub fast_path_ms: f64,
+    pub geometry_ms: f64,
+    pub reject_ms: f64,
+    pub pnp_ms: f64,
+    pub total_ms: f64,
+}
+
+/// Why a frame got no pose.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum Failure {
+    #[error("the frame has no correspondences")]
+    NoCorrespondences,
+    #[error("too few correspondences: {have} < {need}")]
+    TooFewCorrespondences { have: usize, need: usize },
+    #[error("invalid camera intrinsics")]
+    InvalidIntrinsics,
+    #[error("correspondence {index} is not finite")]
+    NonFinite { index: usize },
+    #[error("rejection failed: {0}")]
+    Rejection(RejectError),
+    #[error("PnP failed: {0}")]
+    Pnp(PnpError),
+}
+
+impl Failure {
+    /// A short stable key for counting failures in diagnostics.
+    pub fn key(&self) -> &'static str {
+        match self {
+            Failure::NoCorrespondences => "no_correspondences",
+            Failure::TooFewCorrespondences { .. } => "too_few_correspondences",
+            Failure::InvalidIntrinsics => "invalid_intrinsics",
+            Failure::NonFinite { .. } => "non_finite",
+            Failure::Rejection(_) => "rejection",
+            Failure::Pnp(_) => "pnp",
+        }
+    }
+}
+
+/// The result for one frame.
+#[derive(Clone, Debug)]
+pub struct Localization {
+    pub stamp: Stamp,
+    pub camera_frame_id: String,
+    pub map_frame_id: String,
+    pub method: Method,
+    /// Camera-to-map pose of the camera's optical frame.
+    pub pose: Option<Isometry3<f64>>,
+    /// 6×6 covariance, (x, y, z, rot x, rot y, rot z).
+    pub covariance: Option<Matrix6<f64>>,
+    /// The correspondences kept, `score` = inlier score. With rejection: the rejector's kept
+    /// set, best first; without: the RANSAC inliers.
+    pub kept: Vec<Correspondence>,
+    /// PnP inliers (among the correspondences PnP saw).
+    pub num_inliers: usize,
+    /// Hypotheses PnP drew (the fast path's and the full path's).
+    pub pnp_iterations: usize,
+    pub scale_shift: Option<ScaleShift>,
+    /// How far the depth prior can be trusted on this frame: the share of what the map covers
+    /// in view at the returned pose where the rendered map agrees with the prior (up to the
+    /// prior's unknown affine map), in [0, 1]. `None` without a prior, a map or a pose.
+    pub prior_quality: Option<f64>,
+    /// Whether the cascade's budgeted LO-RANSAC settled the frame (no rejection ran), and what
+    /// it measured when it did not.
+    pub fast_path: bool,
+    pub fast_path_check: Option<FastPathCheck>,
+    /// Whether the pose came from the cascade's last resort (plain LO-RANSAC on every
+    /// correspondence, after the rejection-guided PnP found no consensus).
+    pub last_resort: bool,
+    pub timings: StageTimings,
+    pub failure: Option<Failure>,
+}
+
+impl Localization {
+    /// A frame's result before any step ran: no pose, nothing kept, no failure.
+    pub fn nothing_yet(frame: &Frame, method: Method) -> Self {
+        Self {
+            stamp: frame.stamp,
+            camera_frame_id: frame.camera_frame_id.clone(),
+            map_frame_id: frame.map_frame_id.clone(),
+            method,
+            pose: None,
+            covariance: None,
+            kept: Vec::new(),
+            num_inliers: 0,
+            pnp_iterations: 0,
+            scale_shift: None,
+            prior_quality: None,
+            fast_path: false,
+            fast_path_check: None,
+            last_resort: false,
+            timings: StageTimings::default(),
+            failure: None,
+        }
+    }
+}
