@@ -150,9 +150,8 @@ impl Localizer {
     /// The cascade's first step: a budgeted LO-RANSAC on the raw correspondences. Whether it
     /// settled the frame (then `out` holds the pose and its RANSAC inliers as the kept set).
     fn fast_path(&self, frame: &Frame, out: &mut Localization) -> bool {
-        let t = Instant::now();
-        let settled = self.params.cascade.settle(frame, &self.pnp_params(frame), self.pose_gate.as_ref());
-        out.timings.fast_path_ms = ms_since(t);
+        let (settled, ms) = settle_timed(&self.params.cascade, frame, &self.pnp_params(frame), self.pose_gate.as_ref());
+        out.timings.fast_path_ms = ms;
         self.take_fast_path(frame, settled, out)
     }
 
@@ -167,10 +166,7 @@ impl Localizer {
         let geometry = GeometryStep::of(&self.params, self.rejector.is_some());
         let scratch = &mut self.scratch;
         let ((settled, fast_path_ms), geometry_ms) = rayon::join(
-            || {
-                let t = Instant::now();
-                (cascade.settle(frame, &pnp, gate), ms_since(t))
-            },
+            || settle_timed(cascade, frame, &pnp, gate),
             || {
                 let t = Instant::now();
                 geometry.build(frame, scratch);
@@ -179,7 +175,6 @@ impl Localizer {
         );
         out.timings.fast_path_ms = fast_path_ms;
         if !self.take_fast_path(frame, settled, out) {
-            out.scale_shift = self.scratch.geometry.scale_shift;
             out.timings.geometry_ms = geometry_ms;
             self.reject_and_solve(frame, out);
         }
@@ -210,7 +205,6 @@ impl Localizer {
     fn build_geometry(&mut self, frame: &Frame, out: &mut Localization) {
         let t = Instant::now();
         GeometryStep::of(&self.params, self.rejector.is_some()).build(frame, &mut self.scratch);
-        out.scale_shift = self.scratch.geometry.scale_shift;
         out.timings.geometry_ms = ms_since(t);
     }
 
@@ -218,6 +212,7 @@ impl Localizer {
     /// in score order), verified against the prior.
     fn reject_and_solve(&mut self, frame: &Frame, out: &mut Localization) {
         let scratch = &mut self.scratch;
+        out.scale_shift = scratch.geometry.scale_shift;
         // Rejection: scores and the kept subset, best first.
         let t = Instant::now();
         let rejection = match self.rejector.as_mut().map(|r| r.reject(&scratch.geometry)) {
@@ -266,7 +261,7 @@ impl Localizer {
         };
         match solved {
             Ok(mut solution) => {
-                if rejection.is_some() && self.params.final_refine.enabled {
+                if last_choice.is_some() {
                     self.refine_on_all(frame, &mut solution);
                     let fast_path_pose = out.fast_path_check.and_then(|c| c.pose);
                     let poses: Vec<_> = fast_path_pose.into_iter().chain(ranked).collect();
@@ -437,6 +432,17 @@ fn inliers_of(frame: &Frame, solution: &PnpSolution) -> Vec<Correspondence> {
 fn with_score(mut c: Correspondence, score: f32) -> Correspondence {
     c.score = score;
     c
+}
+
+/// The cascade's fast path on `frame`, and how long it took (ms).
+fn settle_timed(
+    cascade: &CascadeParams,
+    frame: &Frame,
+    pnp: &PnpParams,
+    gate: Option<&PoseGate>,
+) -> (Result<PnpSolution, FastPathCheck>, f64) {
+    let t = Instant::now();
+    (cascade.settle(frame, pnp, gate), ms_since(t))
 }
 
 fn ms_since(t: Instant) -> f64 {
