@@ -262,3 +262,15 @@ fn a_buildings_voxel_trees_can_be_built_ahead_of_the_frames() {
     assert_eq!(rest + after_a_search, index.grid().voxel_count());
     assert_eq!(index.grid().built_trees(), index.grid().voxel_count());
 }
+
+/// What a replay does before its first frame: every tree at once, and the searches answer as
+/// when the trees come on use.
+#[test]
+fn a_buildings_voxel_trees_can_all_be_built_at_load() {
+    let (eager, lazy) = (lazy_building(cloud(20_000)), lazy_building(cloud(20_000)));
+    eager.grid().build_all_trees();
+    assert_eq!(eager.grid().built_trees(), eager.grid().voxel_count());
+    let queries: Vec<Point3<f64>> = (0..50).map(|i| Point3::new(0.7 * i as f64, 15.0 - 0.3 * i as f64, 0.1)).collect();
+    assert_eq!(eager.nearest_normals(&queries), lazy.nearest_normals(&queries));
+    assert_eq!(eager.grid().build_trees_while(|| true), 0, "none left to build");
+}

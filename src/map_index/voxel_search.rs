@@ -214,6 +214,15 @@ impl VoxelGrid {
         built
     }
 
+    /// Builds every per-voxel tree not built yet, in parallel: for a caller that indexes a map
+    /// before its first frame (a replay), so that no frame pays for them.
+    pub fn build_all_trees(&self) {
+        use rayon::prelude::*;
+        (0..self.trees.len()).into_par_iter().for_each(|v| {
+            self.voxel_tree(v);
+        });
+    }
+
     /// Per-voxel trees built so far.
     pub fn built_trees(&self) -> usize {
         self.trees.iter().filter(|t| t.get().is_some()).count()

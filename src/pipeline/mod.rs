@@ -95,10 +95,16 @@ impl Localizer {
         })
     }
 
-    /// The map frames are localized against (indexed here; see [`Localizer::set_map_index`]).
+    /// The map frames are localized against, indexed here whole before the next frame: a
+    /// building-scale map's per-voxel trees too (which a node builds beside its first frames,
+    /// [`crate::map_index::swap`]). See [`Localizer::set_map_index`].
     pub fn set_map(&mut self, map: &crate::frame::MapCloud) {
         let settings = crate::map_index::IndexSettings::from_verify(&self.params.verify);
-        self.set_map_index(std::sync::Arc::new(crate::map_index::MapIndex::build(map.points.clone(), &settings)));
+        let index = crate::map_index::MapIndex::build(map.points.clone(), &settings);
+        if index.searches_per_voxel() {
+            index.grid().build_all_trees();
+        }
+        self.set_map_index(std::sync::Arc::new(index));
     }
 
     /// The map, already indexed (an index may be shared by several localizers, and built on
