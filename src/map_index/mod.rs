@@ -9,15 +9,20 @@
 //!   [`ONE_TREE_MAX_POINTS`] it is one k-d tree over every point, built at load beside the grid,
 //!   and every normal computed at load (a frame then only looks its points up); on a larger one
 //!   it is the grid's per-voxel trees, each built when a search first reaches it
-//!   ([`VoxelGrid::nearest_k`]), and a normal is computed when a frame first needs it and cached
+//!   ([`VoxelGrid::nearest_k`]), and a normal comes from the planar cell nearest to the query
+//!   ([`CellNormals`], solved per voxel on first use) or, where the cells cannot tell (edges,
+//!   corners), is computed for the nearest point when a frame first needs it and cached
 //!   ([`LazyNormals`]), so loading a building's millions of points builds no tree over all of
 //!   them and solves none of their normals. How far a correspondence looks for its normal
-//!   follows the map's [`MapScale`], not how it is searched.
+//!   follows the map's [`MapScale`], not how it is searched. A replay builds a building's trees
+//!   and cells before its first frame ([`MapIndex::prepare_searches`]); a node, beside its
+//!   first frames ([`swap`]).
 //!
 //! Built in parallel (the tree and the grid side by side, the grid's sort and gather, all on
 //! rayon's pool), behind an `Arc`: one index serves every localizer (camera) that uses the map, and a
 //! new map can be indexed on another thread while frames go on against the old one ([`swap`]).
 
+mod cell_normals;
 mod normals;
 pub mod swap;
 mod voxel_search;
@@ -34,6 +39,7 @@ use rayon::prelude::*;
 use crate::geometry::{Intrinsics, PointIndex};
 use crate::verify::{RenderMap, VerifyParams};
 
+pub use cell_normals::{CellAnswer, CellNormals, CELL_SPACINGS};
 pub use normals::{point_normal, LazyNormals, NearestPoints};
 pub use voxels::{PointSlice, View, VoxelGrid};
 
@@ -63,6 +69,9 @@ pub struct IndexSettings {
     /// A map of at most this many points gets one tree and its normals at load
     /// ([`ONE_TREE_MAX_POINTS`]).
     pub one_tree_max_points: usize,
+    /// Whether a larger map's normals come from its planar cells where it has them
+    /// ([`CellNormals`]; otherwise every one is a point's, solved on first use).
+    pub cell_normals: bool,
 }
 
 impl IndexSettings {
@@ -73,6 +82,7 @@ impl IndexSettings {
             voxel_m: params.render_voxel_m as f32,
             building_above_points: params.max_map_points.saturating_mul(params.cull_above_budgets),
             one_tree_max_points: ONE_TREE_MAX_POINTS,
+            cell_normals: true,
         }
     }
 }
@@ -118,6 +128,8 @@ pub struct MapIndex {
     extent_m: f64,
     /// How far a correspondence looks for its map point's normal (`None`: unbounded).
     normal_search_m: Option<f32>,
+    /// A map searched per voxel: the normals of its planar cells.
+    cells: Option<CellNormals>,
 }
 
 impl MapIndex {
@@ -141,10 +153,16 @@ impl MapIndex {
             },
             || VoxelGrid::new(&points, settings.voxel_m),
         );
-        let normal_search_m =
-            (scale == MapScale::Building).then(|| NORMAL_SEARCH_SPACINGS * point_spacing(&points, &grid));
+        let spacing = (scale == MapScale::Building || tree.is_none()).then(|| point_spacing(&points, &grid));
+        let normal_search_m = spacing.filter(|_| scale == MapScale::Building).map(|s| NORMAL_SEARCH_SPACINGS * s);
+        let cells = match spacing {
+            Some(s) if tree.is_none() && normal_search_m.is_some() && settings.cell_normals => {
+                CellNormals::new(&grid, s)
+            }
+            _ => None,
+        };
         let normals = MapNormals::Lazy(LazyNormals::default());
-        let mut index = Self { points, tree, scale, normals, grid, extent_m, normal_search_m };
+        let mut index = Self { points, tree, scale, normals, grid, extent_m, normal_search_m, cells };
         if index.tree.is_some() {
             index.normals = MapNormals::Eager(index.eager_normals());
         }
@@ -208,10 +226,31 @@ impl MapIndex {
         }
     }
 
-    /// For each query, the normal (arbitrary sign, unit or zero when degenerate) of the map point
+    /// For each query, the normal (arbitrary sign, unit or zero when degenerate) of the planar
+    /// cell holding it ([`CellNormals`], a map searched per voxel) or else of the map point
     /// nearest to it (on a building-scale map, within [`NORMAL_SEARCH_SPACINGS`] point
     /// spacings); `None` for an empty map or nothing near. Computed on first use and cached.
     pub fn nearest_normals(&self, queries: &[Point3<f64>]) -> Vec<Option<Vector3<f32>>> {
+        let (Some(cells), Some(reach)) = (&self.cells, self.normal_search_m) else {
+            return self.point_normals(queries);
+        };
+        let from_cells: Vec<CellAnswer> =
+            queries.par_iter().map(|q| cells.normal_at(&self.grid, &q.cast::<f32>(), reach)).collect();
+        let unknown: Vec<Point3<f64>> =
+            queries.iter().zip(&from_cells).filter(|(_, a)| **a == CellAnswer::Unknown).map(|(q, _)| *q).collect();
+        let mut by_points = self.point_normals(&unknown).into_iter();
+        from_cells
+            .into_iter()
+            .map(|answer| match answer {
+                CellAnswer::Normal(normal) => Some(normal),
+                CellAnswer::NoPointNear => None,
+                CellAnswer::Unknown => by_points.next().flatten(),
+            })
+            .collect()
+    }
+
+    /// [`MapIndex::nearest_normals`] by the map points alone (no cells).
+    fn point_normals(&self, queries: &[Point3<f64>]) -> Vec<Option<Vector3<f32>>> {
         let nearest_one = |q: &Point3<f64>| match self.normal_search_m {
             None => self.nearest(&q.cast::<f32>()),
             Some(radius) => self.nearest_within(&q.cast::<f32>(), radius),
@@ -237,6 +276,29 @@ impl MapIndex {
             .par_iter()
             .map_init(Vec::new, |neighbours, p| point_normal(search, &self.points, p, NORMAL_NEIGHBOURS, neighbours))
             .collect()
+    }
+
+    /// Builds now what a building-scale map's searches would build on first use (the per-voxel
+    /// trees, the planar cells' normals), in parallel: for a caller that indexes a map before its
+    /// first frame (a replay), so that no frame pays for them.
+    pub fn prepare_searches(&self) {
+        if self.searches_per_voxel() {
+            self.grid.build_all_trees();
+        }
+        if let Some(cells) = &self.cells {
+            cells.build_all(&self.grid);
+        }
+    }
+
+    /// [`MapIndex::prepare_searches`] one voxel after another on the caller's thread, for as
+    /// long as `wanted` says: what a node's indexing thread goes on with beside the frames.
+    pub fn prepare_searches_while(&self, wanted: impl Fn() -> bool) {
+        if self.searches_per_voxel() {
+            self.grid.build_trees_while(&wanted);
+        }
+        if let Some(cells) = &self.cells {
+            cells.build_while(&self.grid, &wanted);
+        }
     }
 
     /// Normals computed so far (a room's: all of them, at load).

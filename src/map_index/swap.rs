@@ -74,13 +74,14 @@ impl MapSwap {
             if let Some(index) = &index {
                 on_built(index, started.elapsed());
             }
-            // Kept here only for a map searched per voxel, whose trees this thread goes on building.
+            // Kept here only for a map searched per voxel, whose trees and cells this thread goes
+            // on building.
             let keep = index.as_ref().filter(|i| i.searches_per_voxel()).map(Arc::clone);
             swap.finished(number, index);
             if let Some(index) = keep {
-                // The frames go on meanwhile; the per-voxel trees their searches would build are
-                // built here instead, until no one else holds the index any more.
-                index.grid().build_trees_while(|| Arc::strong_count(&index) > 1);
+                // The frames go on meanwhile; the per-voxel trees and cells their searches would
+                // build are built here instead, until no one else holds the index any more.
+                index.prepare_searches_while(|| Arc::strong_count(&index) > 1);
             }
         });
     }
@@ -146,7 +147,7 @@ impl BackgroundIndex {
             // The receiver is gone when a newer map replaced this one: nothing to do.
             let _ = send.send(IndexedCloud { map, index: Arc::clone(&index) });
             if index.searches_per_voxel() {
-                index.grid().build_trees_while(|| Arc::strong_count(&index) > 1);
+                index.prepare_searches_while(|| Arc::strong_count(&index) > 1);
             }
         });
         self.pending = Some(receive);

@@ -131,8 +131,19 @@ fn building(points: Vec<Point3<f32>>) -> MapIndex {
 }
 
 /// A building searched by per-voxel trees, whose normals are computed when first asked for (as
-/// a map too large for one tree).
+/// a map too large for one tree), each a point's (no planar cells).
 fn lazy_building(points: Vec<Point3<f32>>) -> MapIndex {
+    let settings = IndexSettings {
+        building_above_points: 0,
+        one_tree_max_points: 0,
+        cell_normals: false,
+        ..IndexSettings::default()
+    };
+    MapIndex::build(points, &settings)
+}
+
+/// [`lazy_building`] with its normals from planar cells where they tell.
+fn cellular_building(points: Vec<Point3<f32>>) -> MapIndex {
     let settings = IndexSettings { building_above_points: 0, one_tree_max_points: 0, ..IndexSettings::default() };
     MapIndex::build(points, &settings)
 }
@@ -153,7 +164,7 @@ fn the_per_voxel_search_finds_what_one_tree_over_the_map_finds() {
     let whole = PointIndex::new(&points);
     // Small voxels (many of them, most neighbourhoods crossing faces) and large ones.
     for voxel_m in [0.7, 3.0] {
-        let settings = IndexSettings { voxel_m, building_above_points: 0, one_tree_max_points: 0 };
+        let settings = IndexSettings { voxel_m, building_above_points: 0, one_tree_max_points: 0, cell_normals: false };
         let index = MapIndex::build(points.clone(), &settings);
         assert!(index.tree.is_none(), "a building builds no tree over every point");
         let on_map = points.iter().step_by(97).copied();
@@ -273,4 +284,66 @@ fn a_buildings_voxel_trees_can_all_be_built_at_load() {
     let queries: Vec<Point3<f64>> = (0..50).map(|i| Point3::new(0.7 * i as f64, 15.0 - 0.3 * i as f64, 0.1)).collect();
     assert_eq!(eager.nearest_normals(&queries), lazy.nearest_normals(&queries));
     assert_eq!(eager.grid().build_trees_while(|| true), 0, "none left to build");
+}
+
+/// A floor and a wall meeting at x = 10 (a corner along the y axis), densely and randomly
+/// sampled, as a building's surfaces are.
+fn floor_and_wall(n: usize) -> Vec<Point3<f32>> {
+    (0..n as u64)
+        .map(|i| {
+            let r = |salt: u64| (splitmix(i * 5 + salt) >> 11) as f32 / (1u64 << 53) as f32;
+            match i % 2 {
+                0 => Point3::new(10.0 * r(1), 10.0 * r(2), 0.0),
+                _ => Point3::new(10.0, 10.0 * r(3), 3.0 * r(4)),
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn planar_cells_give_their_planes_normal_and_defer_at_edges() {
+    let points = floor_and_wall(200_000);
+    let (cells, exact) = (cellular_building(points.clone()), lazy_building(points));
+    // On the floor, away from the wall: the floor's normal, as the points' own.
+    let on_floor: Vec<Point3<f64>> =
+        (0..40).map(|i| Point3::new(1.0 + 0.2 * i as f64, 2.0 + 0.13 * i as f64, 0.004)).collect();
+    for (by_cell, by_point) in cells.nearest_normals(&on_floor).iter().zip(exact.nearest_normals(&on_floor)) {
+        let (by_cell, by_point) = (by_cell.unwrap(), by_point.unwrap());
+        assert!(by_cell.z.abs() > 0.999, "{by_cell:?}");
+        assert!(by_cell.dot(&by_point).abs() > 0.99, "{by_cell:?} against {by_point:?}");
+    }
+    // Where floor and wall meet, the cell across the edge is not planar: the normal is that of a
+    // planar cell next to it (the wall's or the floor's) or else a point's, exactly.
+    let at_corner: Vec<Point3<f64>> = (0..40).map(|i| Point3::new(9.97, 0.5 + 0.23 * i as f64, 0.03)).collect();
+    let by_points = exact.nearest_normals(&at_corner);
+    let mut per_point = 0;
+    for (by_cell, by_point) in cells.nearest_normals(&at_corner).iter().zip(&by_points) {
+        let by_cell = by_cell.unwrap();
+        if Some(by_cell) == *by_point {
+            per_point += 1;
+        } else {
+            assert!(by_cell.x.abs() > 0.999 || by_cell.z.abs() > 0.999, "{by_cell:?}: neither plane's normal");
+        }
+    }
+    assert!(per_point > 0, "some of the edge's normals are solved per point");
+    assert!(cells.cached_normals() <= per_point, "only those solved per point");
+}
+
+/// The cells say "no point near" only where the search by points finds none within its reach.
+#[test]
+fn cells_find_nothing_only_where_no_point_is_near() {
+    let points = floor_and_wall(100_000);
+    let (cells, exact) = (cellular_building(points.clone()), lazy_building(points));
+    let r = |i: u64, salt: u64| (splitmix(i * 3 + salt) >> 11) as f64 / (1u64 << 53) as f64;
+    // Around the surfaces, from on them to well off them.
+    let queries: Vec<Point3<f64>> =
+        (0..3_000).map(|i| Point3::new(12.0 * r(i, 1) - 1.0, 10.0 * r(i, 2), 0.4 * r(i, 3) - 0.05)).collect();
+    let (by_cells, by_points) = (cells.nearest_normals(&queries), exact.nearest_normals(&queries));
+    let none = by_cells.iter().filter(|n| n.is_none()).count();
+    assert!(none > 100 && none < queries.len() - 100, "both kinds of query: {none} without a normal");
+    for ((q, by_cell), by_point) in queries.iter().zip(&by_cells).zip(&by_points) {
+        if by_cell.is_none() {
+            assert!(by_point.is_none(), "{q:?}: a point within reach, but the cells found none");
+        }
+    }
 }

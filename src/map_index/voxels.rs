@@ -98,7 +98,7 @@ pub(super) fn key_of(p: &Point3<f32>, voxel_m: f32) -> u64 {
 /// put floors at z = 0 and walls at round coordinates: on faces at whole multiples of the voxel,
 /// every point of such a surface would have half its neighbours in the next voxel, and nearly
 /// every neighbour search there would span two.
-const GRID_OFFSET: f32 = 0.381_966;
+pub(super) const GRID_OFFSET: f32 = 0.381_966;
 
 /// The integer coordinates of the voxel of side `voxel_m` holding `p`.
 pub(super) fn cell_of(p: &Point3<f32>, voxel_m: f32) -> [i64; 3] {

@@ -96,14 +96,12 @@ impl Localizer {
     }
 
     /// The map frames are localized against, indexed here whole before the next frame: a
-    /// building-scale map's per-voxel trees too (which a node builds beside its first frames,
-    /// [`crate::map_index::swap`]). See [`Localizer::set_map_index`].
+    /// building-scale map's per-voxel trees and planar cells too (which a node builds beside or
+    /// in its first frames, [`crate::map_index::swap`]). See [`Localizer::set_map_index`].
     pub fn set_map(&mut self, map: &crate::frame::MapCloud) {
         let settings = crate::map_index::IndexSettings::from_verify(&self.params.verify);
         let index = crate::map_index::MapIndex::build(map.points.clone(), &settings);
-        if index.searches_per_voxel() {
-            index.grid().build_all_trees();
-        }
+        index.prepare_searches();
         self.set_map_index(std::sync::Arc::new(index));
     }
 
