@@ -1,10 +1,11 @@
 //! Normals of a building-scale map by planar cells: each voxel of the grid is cut into cubic
-//! cells a few point spacings wide, and a cell whose points lie on a plane gives that plane's
-//! normal to every query inside it. A frame's correspondences then find their map normals by
-//! one lookup each instead of a nearest-point search and a k-nearest-neighbour PCA per new map
-//! point (about 1.7 ms a frame on a 2 M-point building, where the queries are fresh points off
-//! the surfaces every frame). A query in a cell that is empty, sparse or not planar (an edge, a
-//! corner, clutter) takes the exact per-point normal instead ([`super::LazyNormals`]).
+//! cells at least as wide as a correspondence's search for its map point reaches, and a cell
+//! whose points lie on a plane gives that plane's normal to the queries nearest to it. A frame's
+//! correspondences then find their map normals by a few lookups each instead of a nearest-point
+//! search and a k-nearest-neighbour PCA per new map point (about 1.7 ms a frame on a 2 M-point
+//! building, whose queries are fresh points off the surfaces every frame). Where the cells cannot
+//! tell (the nearest is an edge, a corner or a sparse patch) the query takes its nearest map
+//! point's normal instead ([`super::LazyNormals`]).
 //!
 //! A cell's normal is the PCA of its points, as a point's is of its [`super::NORMAL_NEIGHBOURS`]
 //! nearest: on a plane the two agree to within the noise, so the rejector sees the same
@@ -39,12 +40,11 @@ pub struct CellNormals {
     voxels: Vec<OnceLock<Vec<Cell>>>,
 }
 
-/// An occupied cell: how many points, where they are, and their plane's normal if they are
-/// enough and lie on one.
+/// An occupied cell: where its points are, and their plane's normal if they are enough and lie
+/// on one.
 #[derive(Clone, Copy, Debug)]
 struct Cell {
     number: u32,
-    count: u32,
     centroid: Point3<f32>,
     normal: Option<Vector3<f32>>,
 }
@@ -91,6 +91,9 @@ impl CellNormals {
     /// `reach`; no map point in any of them means none within `reach`. Otherwise (an edge, a
     /// corner, a sparse patch) the cells cannot tell, and the caller takes a point's normal.
     pub fn normal_at(&self, grid: &VoxelGrid, q: &Point3<f32>, reach: f32) -> CellAnswer {
+        if !q.iter().all(|v| v.is_finite()) {
+            return CellAnswer::NoPointNear;
+        }
         let n = self.per_side;
         let global = |v: f32| floor_to_int((v / grid.voxel_m + GRID_OFFSET) * n as f32);
         let centre = [global(q.x), global(q.y), global(q.z)];
@@ -110,11 +113,7 @@ impl CellNormals {
         }
         match nearest {
             None => CellAnswer::NoPointNear,
-            Some((d2, Cell { normal: Some(normal), count, .. }))
-                if d2 <= reach * reach && *count >= MIN_CELL_POINTS =>
-            {
-                CellAnswer::Normal(*normal)
-            }
+            Some((d2, Cell { normal: Some(normal), .. })) if d2 <= reach * reach => CellAnswer::Normal(*normal),
             Some(_) => CellAnswer::Unknown,
         }
     }
@@ -173,7 +172,7 @@ impl CellNormals {
             .into_iter()
             .map(|(number, m)| {
                 let centroid = Point3::from(origin + m.sum / m.count as f64).cast();
-                Cell { number, count: m.count, centroid, normal: plane_normal(&m) }
+                Cell { number, centroid, normal: plane_normal(&m) }
             })
             .collect();
         solved.sort_unstable_by_key(|c| c.number);

@@ -346,4 +346,6 @@ fn cells_find_nothing_only_where_no_point_is_near() {
             assert!(by_point.is_none(), "{q:?}: a point within reach, but the cells found none");
         }
     }
+    let not_finite = [Point3::new(f64::NAN, 1.0, 0.0), Point3::new(1.0, f64::INFINITY, 0.0)];
+    assert_eq!(cells.nearest_normals(&not_finite), vec![None, None]);
 }
