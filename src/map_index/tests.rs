@@ -11,11 +11,16 @@ fn intrinsics() -> Intrinsics {
     Intrinsics { fx: 300.0, fy: 300.0, cx: 160.0, cy: 120.0, width: 320, height: 240 }
 }
 
+/// A number in [0, 1) drawn from `key`.
+fn uniform(key: u64) -> f32 {
+    (splitmix(key) >> 11) as f32 / (1u64 << 53) as f32
+}
+
 /// Points on the floor, a wall and in the air of a 40 × 30 × 3 m box, spaced irregularly.
 fn cloud(n: usize) -> Vec<Point3<f32>> {
     (0..n as u64)
         .map(|i| {
-            let r = |salt: u64| (splitmix(i * 7 + salt) >> 11) as f32 / (1u64 << 53) as f32;
+            let r = |salt: u64| uniform(i * 7 + salt);
             match i % 3 {
                 0 => Point3::new(40.0 * r(1), 30.0 * r(2), 0.0),
                 1 => Point3::new(40.0 * r(3), 0.0, 3.0 * r(4)),
@@ -291,7 +296,7 @@ fn a_buildings_voxel_trees_can_all_be_built_at_load() {
 fn floor_and_wall(n: usize) -> Vec<Point3<f32>> {
     (0..n as u64)
         .map(|i| {
-            let r = |salt: u64| (splitmix(i * 5 + salt) >> 11) as f32 / (1u64 << 53) as f32;
+            let r = |salt: u64| uniform(i * 5 + salt);
             match i % 2 {
                 0 => Point3::new(10.0 * r(1), 10.0 * r(2), 0.0),
                 _ => Point3::new(10.0, 10.0 * r(3), 3.0 * r(4)),
@@ -334,7 +339,7 @@ fn planar_cells_give_their_planes_normal_and_defer_at_edges() {
 fn cells_find_nothing_only_where_no_point_is_near() {
     let points = floor_and_wall(100_000);
     let (cells, exact) = (cellular_building(points.clone()), lazy_building(points));
-    let r = |i: u64, salt: u64| (splitmix(i * 3 + salt) >> 11) as f64 / (1u64 << 53) as f64;
+    let r = |i: u64, salt: u64| f64::from(uniform(i * 3 + salt));
     // Around the surfaces, from on them to well off them.
     let queries: Vec<Point3<f64>> =
         (0..3_000).map(|i| Point3::new(12.0 * r(i, 1) - 1.0, 10.0 * r(i, 2), 0.4 * r(i, 3) - 0.05)).collect();
