@@ -153,14 +153,12 @@ impl MapIndex {
             },
             || VoxelGrid::new(&points, settings.voxel_m),
         );
-        let spacing = (scale == MapScale::Building || tree.is_none()).then(|| point_spacing(&points, &grid));
-        let normal_search_m = spacing.filter(|_| scale == MapScale::Building).map(|s| NORMAL_SEARCH_SPACINGS * s);
-        let cells = match spacing {
-            Some(s) if tree.is_none() && normal_search_m.is_some() && settings.cell_normals => {
-                CellNormals::new(&grid, s)
-            }
-            _ => None,
-        };
+        let spacing = (scale == MapScale::Building).then(|| point_spacing(&points, &grid));
+        let normal_search_m = spacing.map(|s| NORMAL_SEARCH_SPACINGS * s);
+        // Cells stand in for the normals a map searched per voxel would solve per point; they
+        // answer within the building-scale search's reach.
+        let cells =
+            spacing.filter(|_| tree.is_none() && settings.cell_normals).and_then(|s| CellNormals::new(&grid, s));
         let normals = MapNormals::Lazy(LazyNormals::default());
         let mut index = Self { points, tree, scale, normals, grid, extent_m, normal_search_m, cells };
         if index.tree.is_some() {
@@ -227,8 +225,8 @@ impl MapIndex {
     }
 
     /// For each query, the normal (arbitrary sign, unit or zero when degenerate) of the planar
-    /// cell holding it ([`CellNormals`], a map searched per voxel) or else of the map point
-    /// nearest to it (on a building-scale map, within [`NORMAL_SEARCH_SPACINGS`] point
+    /// cell nearest to it ([`CellNormals::normal_at`], a building searched per voxel) or else of
+    /// the map point nearest to it (on a building-scale map, within [`NORMAL_SEARCH_SPACINGS`] point
     /// spacings); `None` for an empty map or nothing near. Computed on first use and cached.
     pub fn nearest_normals(&self, queries: &[Point3<f64>]) -> Vec<Option<Vector3<f32>>> {
         let (Some(cells), Some(reach)) = (&self.cells, self.normal_search_m) else {
