@@ -452,8 +452,9 @@ fn in_a_building_the_last_refinement_weighs_every_match_by_the_frames_noise() {
 /// another building frame settles in a wrong basin half a degree off; the ranked search's pose
 /// next to it keeps nine in ten of its inliers, explains as many and fits every match better
 /// (MSAC): the same answer, sharpened (to about a quarter of a degree), which the last choice
-/// takes without the margin another answer needs. (The default Cauchy loss of the last refinement leaves that basin by itself
-/// here; the rule still guards a loss or a frame it does not.)
+/// takes without the margin another answer needs. (The default Cauchy loss of the last
+/// refinement leaves that basin by itself here; the rule still guards a loss or a frame it does
+/// not.)
 #[test]
 fn in_a_building_the_same_answer_that_fits_better_replaces_pnps() {
     if onnx_runtime().is_none() {

@@ -94,9 +94,7 @@ impl CellNormals {
         if !q.iter().all(|v| v.is_finite()) {
             return CellAnswer::NoPointNear;
         }
-        let n = self.per_side;
-        let global = |v: f32| floor_to_int((v / grid.voxel_m + GRID_OFFSET) * n as f32);
-        let centre = [global(q.x), global(q.y), global(q.z)];
+        let centre = self.global_cell(grid, q);
         let mut nearest: Option<(f32, &Cell)> = None;
         for dx in -1..=1 {
             for dy in -1..=1 {
@@ -125,7 +123,7 @@ impl CellNormals {
         let key = super::voxels::pack(g[0].div_euclid(n), g[1].div_euclid(n), g[2].div_euclid(n));
         let v = grid.keys.binary_search(&key).ok()?;
         let cells = self.voxel(grid, v)?;
-        let number = u32::try_from((g[0].rem_euclid(n) * n + g[1].rem_euclid(n)) * n + g[2].rem_euclid(n)).ok()?;
+        let number = self.number(g.map(|c| c.rem_euclid(n)))?;
         cells.binary_search_by_key(&number, |c| c.number).ok().and_then(|at| cells.get(at))
     }
 
@@ -179,15 +177,25 @@ impl CellNormals {
         Some(solved)
     }
 
+    /// The global cell coordinates of `p` (cells counted from the grid's origin, as the voxels
+    /// are: [`super::voxels::cell_of`] at a `per_side`-th of the voxel side).
+    fn global_cell(&self, grid: &VoxelGrid, p: &Point3<f32>) -> [i64; 3] {
+        let n = self.per_side as f32;
+        let global = |v: f32| floor_to_int((v / grid.voxel_m + GRID_OFFSET) * n);
+        [global(p.x), global(p.y), global(p.z)]
+    }
+
     /// The number of the cell holding `p` within the voxel at `voxel_cell` (clamped into it,
     /// where rounding puts `p` on the far face).
     fn cell_number(&self, grid: &VoxelGrid, p: &Point3<f32>, voxel_cell: [i64; 3]) -> Option<u32> {
         let n = self.per_side;
-        let local = |v: f32, axis: usize| {
-            let t = (v / grid.voxel_m + GRID_OFFSET) * n as f32;
-            (floor_to_int(t) - voxel_cell[axis] * n).clamp(0, n - 1)
-        };
-        let [i, j, k] = [local(p.x, 0), local(p.y, 1), local(p.z, 2)];
+        let g = self.global_cell(grid, p);
+        self.number(std::array::from_fn(|axis| (g[axis] - voxel_cell[axis] * n).clamp(0, n - 1)))
+    }
+
+    /// The number of the cell at `local` coordinates (each in 0..per_side) within its voxel.
+    fn number(&self, [i, j, k]: [i64; 3]) -> Option<u32> {
+        let n = self.per_side;
         u32::try_from((i * n + j) * n + k).ok()
     }
 }
