@@ -333,7 +333,7 @@ fn inner_python_matcher_example() {
     // Every stamp again until the matcher has answered them all (it skips stamps it answered; a
     // camera info it missed comes round again).
     let end = Instant::now() + Duration::from_secs(30);
-    while matches!(matcher.0.try_wait(), Ok(None)) && Instant::now() < end {
+    while matcher.0.try_wait().is_ok_and(|s| s.is_none()) && Instant::now() < end {
         for &s in &stamps {
             send(s).expect("info");
             std::thread::sleep(Duration::from_millis(100));
