@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # The paper's ablations (section 4.4) on the shared validation bags, each replayed and scored by
-# `angle-i2p eval`: the method; its trained ablation models (no global attention, distance θ, no
-# scale alignment, no matcher score); keypoints by spectral score only; τ ∈ {0.1, 0.2, 0.4, 0.5};
-# the PnP without the prior check, with plain inlier counting and without verification against
-# the dense prior (`verify`); the training-free rejectors
-# (distance and angle spectral consistency; also with ≥ 1500 PnP iterations, which spends about
-# the network's time per frame) and plain LO-RANSAC.
+# `angle-i2p eval`: the method; the model trained on rooms only and the ablation models trained
+# like it (no global attention, distance θ, no scale alignment, no matcher score); keypoints by
+# spectral score only; τ ∈ {0.1, 0.2, 0.4, 0.5}; the PnP without the prior check, with plain
+# inlier counting and without verification against the dense prior (`verify`); the
+# training-free rejectors (distance and angle spectral consistency; also with ≥ 1500 PnP
+# iterations, which spends about the network's time per frame) and plain LO-RANSAC.
 #   scripts/ablations.sh [BAG ...]   (default: ../shared/data/redkitchen-{extreme,hard}-val)
 # Needs `make build ort`. Output bags go to out/ablations/<bag>/<row>.
 set -euo pipefail
@@ -16,6 +16,7 @@ bags=("$@")
 [ ${#bags[@]} -gt 0 ] || bags=("$data/redkitchen-extreme-val" "$data/redkitchen-hard-val")
 rows=(
   "angle-i2p|--method angle-i2p"
+  "rooms-only-model|--method angle-i2p --params-file params/ablations/rooms_only.yaml"
   "no-global-attention|--method angle-i2p --params-file params/ablations/no_global.yaml"
   "distance-theta|--method angle-i2p --params-file params/ablations/distance_theta.yaml"
   "no-scale-alignment|--method angle-i2p --params-file params/ablations/no_scale_alignment.yaml"

@@ -112,14 +112,14 @@ fn a_model_without_global_inputs_runs_on_the_same_inputs() {
     assert!(scores.iter().all(|s| (0.0..=1.0).contains(s)));
 }
 
-/// The model fine-tuned on the mix of sensors, scenes and priors (`models/angle_i2p_mix.onnx`,
-/// see the model card) takes the same inputs and scores every correspondence.
+/// The model trained on rooms only (`models/ablations/rooms_only.onnx`, the default before the
+/// mix; see the model card) takes the same inputs and scores every correspondence, differently.
 #[test]
-fn the_mix_model_runs_on_the_same_inputs() {
-    let Some(mut mix) = rejector("angle_i2p_mix.onnx") else { return };
+fn the_rooms_only_model_runs_on_the_same_inputs() {
+    let Some(mut rooms) = rejector("ablations/rooms_only.onnx") else { return };
     let Some(mut default) = rejector("angle_i2p.onnx") else { return };
     let inputs = stored_inputs();
-    let scores = mix.run(&inputs).unwrap();
+    let scores = rooms.run(&inputs).unwrap();
     assert_eq!(scores.len(), inputs.features.len());
     assert!(scores.iter().all(|s| (0.0..=1.0).contains(s)));
     let other = default.run(&inputs).unwrap();
