@@ -97,7 +97,8 @@ def run(cmd: list) -> str:
 
 
 def bag_name(bag: pathlib.Path) -> str:
-    bag = bag.resolve()
+    """The bag's name as given (a symlink keeps its own name, which may carry the tier)."""
+    bag = pathlib.Path(os.path.abspath(bag))
     return bag.stem if bag.suffix == ".mcap" else bag.name
 
 
