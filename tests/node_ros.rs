@@ -309,9 +309,9 @@ fn inner_python_matcher_example() {
     });
     std::thread::sleep(Duration::from_millis(300));
     cam.map.publish(convert::point_cloud(frame.stamp, &map)).expect("map");
-    // Frames start once the whole map has arrived (a CI run lost the matcher's answer among the
-    // map's fragments), one a second until a pose comes back; then the rest, so that the matcher
-    // reaches its count and exits.
+    // Frames start once the whole map has arrived (a CI run lost the matcher's one answer, most
+    // likely among the map's fragments, which were still arriving), one a second until a pose
+    // comes back; then the rest, so that the matcher reaches its count and exits.
     netns::wait_for("the node indexes the map", &[&log], || read(&log).contains("map indexed:"));
     let send = |s: i64| {
         cam.info.publish(convert::camera_info(s, &frame.camera_frame_id, &frame.intrinsics)).expect("info");
