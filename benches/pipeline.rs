@@ -1,6 +1,7 @@
-//! Per-frame cost of each stage at N = 400, 1000, 2000 correspondences (synthetic "hard" tier:
+//! Per-frame cost of each stage at N = 400, 1000, 2000, 4000 correspondences (synthetic "hard" tier:
 //! ~15 % inliers, half moved patch-wise): the consistency matrices (angle, distance), the
-//! scale-and-shift alignment, the spectral scorer, and the whole frame with consistency
+//! scale-and-shift alignment, the spectral scorer (and with every correspondence in Θ, where N
+//! is above its anchors), and the whole frame with consistency
 //! rejection, the learned rejector (when ONNX Runtime is there: `make ort`; also with the
 //! verification against the dense prior off) and plain LO-RANSAC, and one verification of a
 //! pose, measured in the same run.
@@ -32,7 +33,7 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("frame");
     group.sample_size(20).measurement_time(Duration::from_secs(3)).warm_up_time(Duration::from_millis(500));
     let align = ScaleShiftParams::default();
-    for n in [400usize, 1000, 2000] {
+    for n in [400usize, 1000, 2000, 4000] {
         let (frames, map) = scene(n);
         let map = Some(map);
         let frame = &frames[1];
@@ -63,6 +64,12 @@ fn bench(c: &mut Criterion) {
         group.bench_with_input(BenchmarkId::new("spectral_scorer", n), &geometry, |b, g| {
             b.iter(|| scorer.reject(black_box(g)).expect("scores"))
         });
+        if n > SpectralParams::default().max_nodes {
+            let mut whole = SpectralRejector::new(SpectralParams { max_nodes: 0, ..SpectralParams::default() });
+            group.bench_with_input(BenchmarkId::new("spectral_scorer_whole", n), &geometry, |b, g| {
+                b.iter(|| whole.reject(black_box(g)).expect("scores"))
+            });
+        }
         // The learned rejector's two halves: inputs built in Rust, then the network in ort.
         if let Ok(mut network) = NetworkRejector::new(NetworkParams::default(), SpectralParams::default()) {
             if let Some(map) = &map {

@@ -72,31 +72,35 @@ pub fn angle_consistency(
         let (oi, pi) = (unit_i[i], unit_p[i]);
         out.values[i * n + i] = 0.0;
         for j in (i + 1)..n {
-            let cos_i = oi.dot(&unit_i[j]).abs();
-            let cos_p = pi.dot(&unit_p[j]).abs();
-            let delta = cos_i - cos_p;
-            let theta = (1.0 - delta * delta * inv_sigma2).max(0.0);
+            let theta = angle_theta(&oi, &pi, &unit_i[j], &unit_p[j], inv_sigma2);
             out.values[i * n + j] = theta;
             out.values[j * n + i] = theta;
         }
     }
 }
 
+/// Eq. (6)–(7) for one pair of centred unit vectors: δ = ||cos α^I| − |cos α^P||, θ = [1 − δ²/σ²_d]₊.
+#[inline(always)]
+fn angle_theta(oi: &Vector3<f32>, pi: &Vector3<f32>, oj: &Vector3<f32>, pj: &Vector3<f32>, inv_sigma2: f32) -> f32 {
+    let delta = oi.dot(oj).abs() - pi.dot(pj).abs();
+    (1.0 - delta * delta * inv_sigma2).max(0.0)
+}
+
 /// Unit vectors from the (weighted) centroid, eq. (5); a point at the centroid gets zero.
 fn centred_unit_vectors(points: &[Point3<f64>], weights: Option<&[f64]>) -> Vec<Vector3<f32>> {
     let c = weighted_centroid(points, weights);
-    points
-        .iter()
-        .map(|p| {
-            let v = p - c;
-            let norm = v.norm();
-            if norm > 1e-12 {
-                (v / norm).cast::<f32>()
-            } else {
-                Vector3::zeros()
-            }
-        })
-        .collect()
+    points.iter().map(|p| unit_from(p, &c)).collect()
+}
+
+/// The unit vector from `centre` to `p` (zero at the centre).
+fn unit_from(p: &Point3<f64>, centre: &Point3<f64>) -> Vector3<f32> {
+    let v = p - centre;
+    let norm = v.norm();
+    if norm > 1e-12 {
+        (v / norm).cast::<f32>()
+    } else {
+        Vector3::zeros()
+    }
 }
 
 fn weighted_centroid(points: &[Point3<f64>], weights: Option<&[f64]>) -> Point3<f64> {
@@ -135,15 +139,92 @@ pub fn distance_consistency(
     let (sa, sr) = (sigma_abs as f32, sigma_rel as f32);
     // Whole rows (each pair twice) keep the inner loop branch-free and vectorisable.
     for (i, row) in out.values.chunks_exact_mut(n).enumerate() {
-        let (ix, iy, iz) = (img.x[i], img.y[i], img.z[i]);
-        let (mx, my, mz) = (mp.x[i], mp.y[i], mp.z[i]);
-        for j in 0..n {
-            let d_img = ((img.x[j] - ix).powi(2) + (img.y[j] - iy).powi(2) + (img.z[j] - iz).powi(2)).sqrt();
-            let d_map = ((mp.x[j] - mx).powi(2) + (mp.y[j] - my).powi(2) + (mp.z[j] - mz).powi(2)).sqrt();
-            let delta = (d_img - d_map) / (sa + sr * d_map);
-            row[j] = (1.0 - delta * delta).max(0.0);
-        }
+        distance_row([img.x[i], img.y[i], img.z[i]], [mp.x[i], mp.y[i], mp.z[i]], &img, &mp, sa, sr, row);
         row[i] = 0.0;
+    }
+}
+
+/// The distance θ of one correspondence (its image and map point) with every point of `img`
+/// and `mp`, into `row` (as long as they are): whole rows keep the loop branch-free and
+/// vectorisable.
+#[inline(always)]
+fn distance_row(i: [f32; 3], m: [f32; 3], img: &Soa, mp: &Soa, sa: f32, sr: f32, row: &mut [f32]) {
+    for (j, theta) in row.iter_mut().enumerate() {
+        let d_img = ((img.x[j] - i[0]).powi(2) + (img.y[j] - i[1]).powi(2) + (img.z[j] - i[2]).powi(2)).sqrt();
+        let d_map = ((mp.x[j] - m[0]).powi(2) + (mp.y[j] - m[1]).powi(2) + (mp.z[j] - m[2]).powi(2)).sqrt();
+        let delta = (d_img - d_map) / (sa + sr * d_map);
+        *theta = (1.0 - delta * delta).max(0.0);
+    }
+}
+
+/// Θ's rows against a fixed set of anchor correspondences: the block between any
+/// correspondence and the anchors, which extends a leading eigenvector found on the anchors
+/// alone to every correspondence (the Nyström extension), at n·m pairs instead of n².
+pub struct AnchorRows {
+    kind: AnchorKind,
+    len: usize,
+}
+
+enum AnchorKind {
+    /// The anchors' aligned image and map points, with the tolerance of [`distance_consistency`].
+    Distance { image: Soa, map: Soa, sigma_abs: f32, sigma_rel: f32 },
+    /// The anchors' centroids, their unit vectors from them and 1/σ²_d, as [`angle_consistency`]
+    /// builds them.
+    Angle { centres: [Point3<f64>; 2], image: Vec<Vector3<f32>>, map: Vec<Vector3<f32>>, inv_sigma2: f32 },
+}
+
+impl AnchorRows {
+    /// The anchors of [`distance_consistency`] with the same tolerance.
+    pub fn distance(image: &[Point3<f64>], map: &[Point3<f64>], sigma_abs: f64, sigma_rel: f64) -> Self {
+        let n = image.len().min(map.len());
+        let kind = AnchorKind::Distance {
+            image: Soa::new(&image[..n]),
+            map: Soa::new(&map[..n]),
+            sigma_abs: sigma_abs as f32,
+            sigma_rel: sigma_rel as f32,
+        };
+        Self { kind, len: n }
+    }
+
+    /// The anchors of [`angle_consistency`], centred on their (`weights`-weighted) centroids.
+    pub fn angle(image: &[Point3<f64>], map: &[Point3<f64>], weights: Option<&[f64]>, sigma_d: f64) -> Self {
+        let n = image.len().min(map.len());
+        let centres = [weighted_centroid(&image[..n], weights), weighted_centroid(&map[..n], weights)];
+        let kind = AnchorKind::Angle {
+            centres,
+            image: centred_unit_vectors(&image[..n], weights),
+            map: centred_unit_vectors(&map[..n], weights),
+            inv_sigma2: (1.0 / (sigma_d * sigma_d)) as f32,
+        };
+        Self { kind, len: n }
+    }
+
+    /// How many anchors.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// θ between the correspondence (`image`, `map`) and each anchor, into `row` (resized to
+    /// [`AnchorRows::len`]); the same values the square builders give the anchors' own pairs.
+    pub fn row(&self, image: &Point3<f64>, map: &Point3<f64>, row: &mut Vec<f32>) {
+        row.resize(self.len, 0.0);
+        match &self.kind {
+            AnchorKind::Distance { image: img, map: mp, sigma_abs, sigma_rel } => {
+                let i = [image.x as f32, image.y as f32, image.z as f32];
+                let m = [map.x as f32, map.y as f32, map.z as f32];
+                distance_row(i, m, img, mp, *sigma_abs, *sigma_rel, row);
+            }
+            AnchorKind::Angle { centres, image: ui, map: up, inv_sigma2 } => {
+                let (oi, pi) = (unit_from(image, &centres[0]), unit_from(map, &centres[1]));
+                for (j, theta) in row.iter_mut().enumerate() {
+                    *theta = angle_theta(&oi, &pi, &ui[j], &up[j], *inv_sigma2);
+                }
+            }
+        }
     }
 }
 
@@ -211,6 +292,28 @@ mod tests {
             assert_eq!(reused.values, fresh.values);
             assert!((0..40).all(|i| reused.get(i, i) == 0.0));
         }
+    }
+
+    #[test]
+    fn anchor_rows_are_the_square_matrix_rows() {
+        let (image, map) = (cloud(4, 30), cloud(5, 30));
+        let weights: Vec<f64> = (0..30).map(|i| 0.5 + (i % 3) as f64).collect();
+        let same_rows = |anchors: AnchorRows, square: &ConsistencyMatrix| {
+            assert_eq!(anchors.len(), 30);
+            let mut row = Vec::new();
+            for i in 0..30 {
+                anchors.row(&image[i], &map[i], &mut row);
+                // Off the diagonal the same numbers; on it the pair with itself (θ = 1).
+                assert_eq!(row[i], 1.0);
+                row[i] = 0.0;
+                assert_eq!(row.as_slice(), square.row(i), "row {i}");
+            }
+        };
+        let mut square = ConsistencyMatrix::default();
+        distance_consistency(&image, &map, 0.05, 0.1, &mut square);
+        same_rows(AnchorRows::distance(&image, &map, 0.05, 0.1), &square);
+        angle_consistency(&image, &map, Some(&weights), 0.2, &mut square);
+        same_rows(AnchorRows::angle(&image, &map, Some(&weights), 0.2), &square);
     }
 
     fn pose() -> Isometry3<f64> {

@@ -201,6 +201,31 @@ fn learned_rejection_with_realistic_priors() {
     }
 }
 
+/// A dense matcher's frames (2500 matches, the hard tier's 15 % inliers) have more matches than
+/// the spectral pass holds (`spectral.max_nodes`): it ranks them through anchors, and every
+/// method that uses it registers them as well as with every match in Θ.
+#[test]
+fn frames_of_a_dense_matcher_localize_through_the_spectral_anchors() {
+    let config = SynthConfig { frames: 3, seed: 5, correspondences: 2500, ..SynthConfig::preset("hard").unwrap() };
+    let scene = generate(&config);
+    assert!(scene.frames.iter().all(|f| f.correspondences.len() > LocalizerParams::default().spectral.max_nodes));
+    let mut methods = vec![Method::Consistency];
+    if onnx_runtime().is_some() {
+        methods.push(Method::AngleI2p);
+    }
+    for method in methods {
+        for max_nodes in [LocalizerParams::default().spectral.max_nodes, 0] {
+            let mut params = LocalizerParams { method, ..LocalizerParams::default() };
+            params.spectral.max_nodes = max_nodes;
+            let (rows, raw_ir) = localize_params(&scene.frames, Some(&scene.map), params);
+            let s = summarize(&rows);
+            let what = format!("{} with max_nodes {max_nodes}", method.name());
+            assert_eq!(s.rr, 100.0, "{what}: {s:?}");
+            assert!(s.mre.unwrap() < 1.0 && s.ir >= 2.0 * raw_ir, "{what}: {s:?}, raw IR {raw_ir:.1} %");
+        }
+    }
+}
+
 /// The cascade (issue #9): frames with a clear majority of good matches end on the fast path
 /// (no rejection), hard frames go on to the rejector; both are localized.
 #[test]

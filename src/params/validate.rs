@@ -184,6 +184,14 @@ impl LocalizerParams {
         at_least("spectral.max_keep", s.max_keep as u64, 1, "at least 1")?;
         at_least("spectral.iterations", s.iterations as u64, 1, "at least 1")?;
         real("spectral.tolerance", s.tolerance as f64, Range::Positive)?;
+        if s.max_nodes == 1 {
+            // One anchor has no pair to be consistent with.
+            return Err(InvalidParam {
+                key: "spectral.max_nodes",
+                value: s.max_nodes.to_string(),
+                range: "0 (every correspondence) or at least 2",
+            });
+        }
         real("network.tau", n.tau, Range::Unit)?;
         at_least("network.intra_threads", n.intra_threads as u64, 1, "at least 1")?;
         at_least("network.neighbours", n.graph.neighbours as u64, 1, "at least 1")?;
@@ -221,6 +229,7 @@ mod tests {
             ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = 0.5)),
             ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = f64::INFINITY)),
             ("spectral.keep_ratio", Box::new(|p| p.localizer.spectral.keep_ratio = 5.0)),
+            ("spectral.max_nodes", Box::new(|p| p.localizer.spectral.max_nodes = 1)),
             ("verify.accept", Box::new(|p| p.localizer.verify.accept = 2.0)),
             ("network.neighbours", Box::new(|p| p.localizer.network.graph.neighbours = 0)),
             ("limits.max_correspondences", Box::new(|p| p.limits.max_correspondences = 0)),

@@ -9,9 +9,12 @@ pub mod network;
 pub mod network_params;
 
 use nalgebra::Point3;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::consistency::{angle_consistency, distance_consistency, ConsistencyMatrix, PairMetric, ScaleShiftParams};
+use crate::consistency::{
+    angle_consistency, distance_consistency, AnchorRows, ConsistencyMatrix, PairMetric, ScaleShiftParams,
+};
 use crate::frame::Frame;
 use crate::geometry::{DepthKind, GeometryScratch};
 
@@ -97,6 +100,12 @@ pub struct SpectralParams {
     pub tolerance: f32,
     /// Angle metric: passes that re-centre eq. (5) on the previous pass's scores (0 = paper).
     pub recentre_passes: usize,
+    /// Correspondences Θ holds at most: a frame with more finds the leading eigenvector on this
+    /// many anchors spread evenly over them and scores every correspondence by its consistency
+    /// with the anchors (the Nyström extension), so the work grows as N·`max_nodes` instead of
+    /// N² (and Θ's memory stays `max_nodes`²). The anchors hold the inliers in the frame's own
+    /// ratio. 0: every correspondence in Θ.
+    pub max_nodes: usize,
 }
 
 impl Default for SpectralParams {
@@ -112,6 +121,7 @@ impl Default for SpectralParams {
             iterations: 30,
             tolerance: 1e-3,
             recentre_passes: 1,
+            max_nodes: 1000,
         }
     }
 }
@@ -134,8 +144,15 @@ fn spread(points: &[Point3<f64>]) -> f64 {
 pub struct SpectralRejector {
     pub params: SpectralParams,
     theta: ConsistencyMatrix,
+    /// The points Θ is built on: every usable correspondence's, or the anchors'.
     image: Vec<Point3<f64>>,
     map: Vec<Point3<f64>>,
+    /// Every usable correspondence's points when Θ holds only anchors (else left empty).
+    all_image: Vec<Point3<f64>>,
+    all_map: Vec<Point3<f64>>,
+    /// Positions (among the usable correspondences) of the anchors, increasing.
+    anchors: Vec<usize>,
+    /// Frame positions of the usable correspondences (a finite prior point).
     index: Vec<usize>,
     vector: Vec<f32>,
     next: Vec<f32>,
@@ -165,6 +182,9 @@ impl SpectralRejector {
         self.image.extend(self.index.iter().map(|&i| geometry.image_points[i]));
         self.map.clear();
         self.map.extend(self.index.iter().map(|&i| geometry.map_points[i]));
+        // The tolerance follows the spread of every usable map point, anchors or not.
+        let sigma_abs = self.params.sigma_spread * spread(&self.map);
+        let anchored = self.keep_anchors();
         match self.params.metric {
             PairMetric::Angle => {
                 // Outliers drag the centroids of eq. (5) apart, which blurs θ for inliers too;
@@ -183,15 +203,14 @@ impl SpectralRejector {
                     );
                 }
             }
-            PairMetric::Distance => distance_consistency(
-                &self.image,
-                &self.map,
-                self.params.sigma_spread * spread(&self.map),
-                self.params.sigma_rel,
-                &mut self.theta,
-            ),
+            PairMetric::Distance => {
+                distance_consistency(&self.image, &self.map, sigma_abs, self.params.sigma_rel, &mut self.theta)
+            }
         }
         self.leading_eigenvector();
+        if anchored {
+            self.extend_from_anchors(sigma_abs);
+        }
         let max = self.vector.iter().copied().fold(0.0f32, f32::max);
         scores.clear();
         scores.resize(n, 0.0);
@@ -201,6 +220,60 @@ impl SpectralRejector {
             }
         }
         Ok(())
+    }
+
+    /// With more usable correspondences than `max_nodes`: the anchors (`max_nodes` of them,
+    /// evenly spaced) become Θ's points and every usable one is kept aside; whether it did.
+    fn keep_anchors(&mut self) -> bool {
+        let (len, max) = (self.image.len(), self.params.max_nodes);
+        self.anchors.clear();
+        self.all_image.clear();
+        self.all_map.clear();
+        if max == 0 || len <= max {
+            return false;
+        }
+        self.anchors.extend((0..max).map(|k| k * len / max));
+        std::mem::swap(&mut self.image, &mut self.all_image);
+        std::mem::swap(&mut self.map, &mut self.all_map);
+        self.image.clear();
+        self.image.extend(self.anchors.iter().map(|&p| self.all_image[p]));
+        self.map.clear();
+        self.map.extend(self.anchors.iter().map(|&p| self.all_map[p]));
+        true
+    }
+
+    /// The Nyström extension of the anchors' leading eigenvector v to every usable
+    /// correspondence: u_i = Σ_k θ(i, anchor k)·v_k, an anchor's own term left out as Θ's
+    /// diagonal is (so on the anchors u = Θv ≈ λv, and every score keeps one scale). Into
+    /// `vector`, over all of them.
+    fn extend_from_anchors(&mut self, sigma_abs: f64) {
+        let p = &self.params;
+        let rows = match p.metric {
+            PairMetric::Distance => AnchorRows::distance(&self.image, &self.map, sigma_abs, p.sigma_rel),
+            PairMetric::Angle => {
+                let weights = (p.recentre_passes > 0).then_some(self.weights.as_slice());
+                AnchorRows::angle(&self.image, &self.map, weights, p.sigma_d)
+            }
+        };
+        // Rows in parallel (each its own sum, so the result does not depend on the split): the
+        // map normals beside this finish long before it on a large frame.
+        let (anchors, vector) = (&self.anchors, &self.vector);
+        self.all_image
+            .par_iter()
+            .zip(&self.all_map)
+            .enumerate()
+            .map_init(
+                || Vec::with_capacity(rows.len()),
+                |row, (position, (image, map))| {
+                    rows.row(image, map, row);
+                    if let Ok(k) = anchors.binary_search(&position) {
+                        row[k] = 0.0;
+                    }
+                    dot(row, vector)
+                },
+            )
+            .collect_into_vec(&mut self.next);
+        std::mem::swap(&mut self.vector, &mut self.next);
     }
 
     /// Power iteration from the degree vector (already close to the leading eigenvector when
@@ -367,6 +440,31 @@ mod tests {
             // the aligned distance metric nearly exact: see the README's table.
             let bar = if metric == PairMetric::Distance { 0.9 } else { 0.45 };
             assert!(precision > bar, "{metric:?}: precision {precision}");
+        }
+    }
+
+    #[test]
+    fn anchors_rank_inliers_as_the_whole_matrix_does() {
+        let (f, truth) = frame(1200, 240);
+        let g = FrameGeometry::build(&f, DepthKind::Depth, Some(&ScaleShiftParams::default()));
+        for metric in [PairMetric::Distance, PairMetric::Angle] {
+            let scores = |max_nodes| {
+                let mut r = SpectralRejector::new(SpectralParams { metric, max_nodes, ..SpectralParams::default() });
+                let mut scores = Vec::new();
+                r.scores_into(&g, &mut scores).unwrap();
+                scores
+            };
+            let (whole, anchored) = (scores(0), scores(300));
+            assert_eq!(anchored.len(), 1200);
+            // At the limit every correspondence is in Θ: the same numbers.
+            assert_eq!(scores(1200), whole);
+            // Precision among as many as there are inliers: the anchors' ranking is nearly the
+            // whole matrix's.
+            let precision = |scores: &[f32]| top_k(scores, 240).iter().filter(|&&i| truth[i]).count() as f64 / 240.0;
+            let (p_whole, p_anchored) = (precision(&whole), precision(&anchored));
+            let bar = if metric == PairMetric::Distance { 0.9 } else { 0.45 };
+            assert!(p_anchored > bar && p_anchored > p_whole - 0.05, "{metric:?}: {p_anchored} vs {p_whole}");
+            assert!(anchored.iter().all(|s| (0.0..=1.0).contains(s)) && anchored.contains(&1.0));
         }
     }
 
