@@ -190,10 +190,11 @@ impl AnchorRows {
     pub fn angle(image: &[Point3<f64>], map: &[Point3<f64>], weights: Option<&[f64]>, sigma_d: f64) -> Self {
         let n = image.len().min(map.len());
         let centres = [weighted_centroid(&image[..n], weights), weighted_centroid(&map[..n], weights)];
+        let units = |points: &[Point3<f64>], centre| points[..n].iter().map(|p| unit_from(p, centre)).collect();
         let kind = AnchorKind::Angle {
+            image: units(image, &centres[0]),
+            map: units(map, &centres[1]),
             centres,
-            image: centred_unit_vectors(&image[..n], weights),
-            map: centred_unit_vectors(&map[..n], weights),
             inv_sigma2: (1.0 / (sigma_d * sigma_d)) as f32,
         };
         Self { kind, len: n }
