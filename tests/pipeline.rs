@@ -226,6 +226,36 @@ fn frames_of_a_dense_matcher_localize_through_the_spectral_anchors() {
     }
 }
 
+/// A matcher that publishes no confidence (every score 0, or every score 1): the network reads
+/// the model's typical confidence for both (`network.missing_confidence`), so the frame is
+/// localized the same either way, and registered.
+#[test]
+fn a_matcher_without_confidence_is_read_the_same_whatever_constant_it_sends() {
+    if onnx_runtime().is_none() {
+        return;
+    }
+    let scene = generate(&SynthConfig { frames: 2, seed: 11, ..SynthConfig::preset("extreme").unwrap() });
+    let with_scores = |score: f32| -> Vec<Frame> {
+        let mut frames = scene.frames.clone();
+        frames.iter_mut().flat_map(|f| f.correspondences.iter_mut()).for_each(|c| c.score = score);
+        frames
+    };
+    let localize = |frames: &[Frame]| {
+        let mut localizer = Localizer::new(LocalizerParams::default()).expect("a localizer");
+        localizer.set_map(&scene.map);
+        frames.iter().map(|f| localizer.process(f)).collect::<Vec<_>>()
+    };
+    let (zeros, ones) = (localize(&with_scores(0.0)), localize(&with_scores(1.0)));
+    for ((zero, one), f) in zeros.iter().zip(&ones).zip(&scene.frames) {
+        assert_eq!(zero.pose, one.pose);
+        assert_eq!(zero.kept.len(), one.kept.len());
+        let gt = f.ground_truth.as_ref().expect("ground truth");
+        let (pose, depth) = (gt.pose.as_ref().expect("gt pose"), gt.depth.as_ref().expect("gt depth"));
+        let errors = pose_errors(&zero.pose.expect("a pose"), pose, &f.intrinsics, depth);
+        assert!(errors.registered(), "{errors:?}");
+    }
+}
+
 /// The cascade (issue #9): frames with a clear majority of good matches end on the fast path
 /// (no rejection), hard frames go on to the rejector; both are localized.
 #[test]

@@ -193,6 +193,7 @@ impl LocalizerParams {
             });
         }
         real("network.tau", n.tau, Range::Unit)?;
+        real("network.missing_confidence", n.missing_confidence as f64, Range::Unit)?;
         at_least("network.intra_threads", n.intra_threads as u64, 1, "at least 1")?;
         at_least("network.neighbours", n.graph.neighbours as u64, 1, "at least 1")?;
         at_least("network.keypoints", n.graph.keypoints as u64, 1, "at least 1")?;
@@ -225,6 +226,7 @@ mod tests {
             ("pnp.confidence", Box::new(|p| p.localizer.pnp.confidence = 2.0)),
             ("pnp.max_iterations", Box::new(|p| p.localizer.pnp.max_iterations = 0)),
             ("network.tau", Box::new(|p| p.localizer.network.tau = 1.5)),
+            ("network.missing_confidence", Box::new(|p| p.localizer.network.missing_confidence = -0.5)),
             ("verify.min_support_share", Box::new(|p| p.localizer.verify.min_support_share = 1.5)),
             ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = 0.5)),
             ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = f64::INFINITY)),

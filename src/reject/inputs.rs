@@ -126,6 +126,19 @@ pub fn build_inputs_into(
     );
     inputs.matcher_scores.clear();
     inputs.matcher_scores.extend_from_slice(&geometry.matcher_scores);
+    impute_missing_confidence(&mut inputs.matcher_scores, params.missing_confidence);
+}
+
+/// A matcher that publishes no confidence gives every match of the frame one score: the
+/// network reads `missing` for them instead ([`NetworkParams::missing_confidence`]). Informative
+/// scores are left as they are. (The keypoints' ranking needs nothing of this: with one score
+/// for all, spectral × confidence is the spectral order.)
+fn impute_missing_confidence(scores: &mut [f32], missing: f32) {
+    if let Some(&first) = scores.first() {
+        if scores.iter().all(|&s| s == first) {
+            scores.fill(missing);
+        }
+    }
 }
 
 /// The scores that pick the keypoints ([`KeypointRanking`]). A matcher that publishes no
@@ -140,5 +153,23 @@ fn keypoint_ranks(spectral: &[f32], geometry: &FrameGeometry, params: &NetworkPa
                 .zip(&geometry.matcher_scores)
                 .map(|(&s, &m)| s * (if m.is_finite() { m.clamp(0.0, 1.0) } else { 0.0 } + 1e-3)),
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::impute_missing_confidence;
+
+    #[test]
+    fn one_score_for_every_match_reads_as_the_missing_confidence() {
+        for published in [0.0f32, 1.0, 0.6] {
+            let mut scores = vec![published; 5];
+            impute_missing_confidence(&mut scores, 0.25);
+            assert_eq!(scores, vec![0.25; 5], "all {published}");
+        }
+        let mut informative = vec![0.1, 0.9, 0.1];
+        impute_missing_confidence(&mut informative, 0.25);
+        assert_eq!(informative, vec![0.1, 0.9, 0.1]);
+        impute_missing_confidence(&mut [], 0.25);
     }
 }

@@ -33,6 +33,13 @@ pub struct NetworkParams {
     pub keypoint_iterations: usize,
     /// What ranks the M keypoints of the global graph.
     pub keypoint_ranking: KeypointRanking,
+    /// The confidence the network reads for every match of a frame whose matcher published
+    /// none (every score of the frame equal: all 0, all 1, …). Such scores say nothing within
+    /// the frame, yet the network reads all 0 as "every match doubtful" and all 1 as "every
+    /// match certain", neither of which its training matchers ever said; the typical
+    /// confidence of those matchers (their medians: 0.07–0.29) reads as "unknown". A property
+    /// of the model, not of the scene: retraining on other matchers moves it.
+    pub missing_confidence: f32,
 }
 
 /// How the global graph's keypoints are chosen (the paper takes P2-Net's top-M detections).
@@ -59,6 +66,7 @@ impl Default for NetworkParams {
             align_prior: true,
             keypoint_iterations: 4,
             keypoint_ranking: KeypointRanking::default(),
+            missing_confidence: 0.25,
         }
     }
 }
