@@ -1,7 +1,8 @@
 //! Map loading at building scale: indexing a `synth --preset building` map of 200 k, 1 M and
 //! 5 M points (`MapIndex::build`: the point tree and the voxel grid, side by side), what the
-//! lazy normals replace (every point's normal, computed eagerly, at 200 k), and one culled
-//! render source query (the points in view at a pose) on each map.
+//! lazy normals replace (every point's normal, computed eagerly, at 200 k), one culled render
+//! source query (the points in view at a pose) on each map, and one frame's map normals (its
+//! correspondences' map points, the network's input, once the planar cells are built).
 //!
 //! `cargo bench --bench map_load` (`ANGLE_I2P_BENCH_MAP_POINTS=200000,1000000` for other sizes).
 
@@ -45,6 +46,11 @@ fn bench(c: &mut Criterion) {
         let view = View { pose: &pose, intrinsics: &frame.intrinsics, range_m: verify.cull_range_m, near_m: 0.05 };
         group.bench_with_input(BenchmarkId::new("points_in_view", n), &index, |b, i| {
             b.iter(|| i.visible(black_box(&view), verify.max_map_points).len())
+        });
+        index.prepare_searches();
+        let queries: Vec<nalgebra::Point3<f64>> = frame.correspondences.iter().map(|c| c.point).collect();
+        group.bench_with_input(BenchmarkId::new("frame_normals", n), &index, |b, i| {
+            b.iter(|| i.nearest_normals(black_box(&queries)).len())
         });
     }
     group.finish();

@@ -17,7 +17,7 @@ use std::sync::OnceLock;
 use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
-use super::voxels::{floor_to_int, unpack, Voxel, VoxelGrid, GRID_OFFSET};
+use super::voxels::{floor_to_int, pack, unpack, Voxel, VoxelGrid, GRID_OFFSET};
 
 /// A cell's least side, in the map's point spacings: the reach of a correspondence's search for
 /// its map point ([`super::NORMAL_SEARCH_SPACINGS`]), so the cells next to a query's own hold
@@ -68,6 +68,28 @@ struct Moments {
     outer: Matrix3<f64>,
 }
 
+/// The voxels one query has looked up (at most the 8 its 27 neighbouring cells span).
+#[derive(Default)]
+struct VoxelCache<'a> {
+    entries: [(u64, Option<&'a [Cell]>); 8],
+    len: usize,
+}
+
+impl<'a> VoxelCache<'a> {
+    /// The cells of the voxel `key`, by `lookup` the first time it is asked.
+    fn get(&mut self, key: u64, lookup: impl FnOnce(u64) -> Option<&'a [Cell]>) -> Option<&'a [Cell]> {
+        if let Some((_, cells)) = self.entries[..self.len].iter().find(|(k, _)| *k == key) {
+            return *cells;
+        }
+        let cells = lookup(key);
+        if let Some(slot) = self.entries.get_mut(self.len) {
+            *slot = (key, cells);
+            self.len += 1;
+        }
+        cells
+    }
+}
+
 impl CellNormals {
     /// Cells of at least `CELL_SPACINGS · spacing` (a whole number of them, at most 1024, per
     /// voxel side); `None` for a spacing that gives no such cells.
@@ -95,11 +117,26 @@ impl CellNormals {
             return CellAnswer::NoPointNear;
         }
         let centre = self.global_cell(grid, q);
+        // Per axis, the voxel and the cell within it of the three neighbouring cells.
+        let n = self.per_side;
+        let axes: [[(i64, i64); 3]; 3] = std::array::from_fn(|a| {
+            std::array::from_fn(|d| {
+                ((centre[a] + d as i64 - 1).div_euclid(n), (centre[a] + d as i64 - 1).rem_euclid(n))
+            })
+        });
+        // The 27 cells lie in at most 8 voxels, most often one: each is looked up once.
+        let mut voxels = VoxelCache::default();
         let mut nearest: Option<(f32, &Cell)> = None;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let Some(cell) = self.cell(grid, [centre[0] + dx, centre[1] + dy, centre[2] + dz]) else {
+        for &(vx, i) in &axes[0] {
+            for &(vy, j) in &axes[1] {
+                for &(vz, k) in &axes[2] {
+                    let Some(cells) = voxels.get(pack(vx, vy, vz), |key| self.voxel_by_key(grid, key)) else {
+                        continue;
+                    };
+                    let Some(number) = self.number([i, j, k]) else { continue };
+                    let Some(cell) =
+                        cells.binary_search_by_key(&number, |c| c.number).ok().and_then(|at| cells.get(at))
+                    else {
                         continue;
                     };
                     let d2 = (cell.centroid - q).norm_squared();
@@ -116,15 +153,10 @@ impl CellNormals {
         }
     }
 
-    /// The cell at global cell coordinates `g` (cells counted from the grid's origin), if it
-    /// holds a point.
-    fn cell(&self, grid: &VoxelGrid, g: [i64; 3]) -> Option<&Cell> {
-        let n = self.per_side;
-        let key = super::voxels::pack(g[0].div_euclid(n), g[1].div_euclid(n), g[2].div_euclid(n));
+    /// The occupied cells of the voxel with `key`, if the grid holds it.
+    fn voxel_by_key(&self, grid: &VoxelGrid, key: u64) -> Option<&[Cell]> {
         let v = grid.keys.binary_search(&key).ok()?;
-        let cells = self.voxel(grid, v)?;
-        let number = self.number(g.map(|c| c.rem_euclid(n)))?;
-        cells.binary_search_by_key(&number, |c| c.number).ok().and_then(|at| cells.get(at))
+        self.voxel(grid, v).map(Vec::as_slice)
     }
 
     /// Every voxel's cells, in parallel (a replay, before its first frame).
