@@ -8,7 +8,9 @@ Inputs (built in Rust by `angle-i2p export` / the node, never inside the graph):
   global_theta [M, M]     θ among the keypoints
   cross_theta  [N, M]     θ between every correspondence and every keypoint
   matcher_score [N]       the matcher's own confidence (only a model built with
-                          `use_matcher_score`; an input beyond eq. 9)
+                          `use_matcher_score`; an input beyond eq. 9), or instead
+  matcher_rank [N]        its within-frame ranks in [0, 1] (`matcher_input="matcher_rank"`:
+                          blind to the matcher's scale; the runtime feeds what the model names)
 Output: score [N], the inlier probability.
 
 Each block: self-attention inside every local group, self-attention among the keypoints,
@@ -71,11 +73,16 @@ class Block(nn.Module):
 
 
 class AngleI2PNet(nn.Module):
-    def __init__(self, d: int = 32, blocks: int = 2, use_global: bool = True, use_matcher_score: bool = False):
+    def __init__(self, d: int = 32, blocks: int = 2, use_global: bool = True, use_matcher_score: bool = False,
+                 matcher_input: str = "matcher_score"):
         super().__init__()
+        assert matcher_input in ("matcher_score", "matcher_rank"), matcher_input
         self.use_matcher_score = use_matcher_score
+        self.matcher_input = matcher_input
         self.config = {"d": d, "blocks": blocks, "use_global": use_global, "use_matcher_score": use_matcher_score}
-        self.input_names = INPUT_NAMES + (["matcher_score"] if use_matcher_score else [])
+        if use_matcher_score and matcher_input != "matcher_score":
+            self.config["matcher_input"] = matcher_input
+        self.input_names = INPUT_NAMES + ([matcher_input] if use_matcher_score else [])
         self.embed = nn.Sequential(nn.Linear(24 + int(use_matcher_score), d), nn.ReLU(), nn.Linear(d, d))
         self.blocks = nn.ModuleList(Block(d, use_global) for _ in range(blocks))
         self.head = nn.Sequential(nn.Linear(d, d), nn.ReLU(), nn.Linear(d, 1))

@@ -40,6 +40,49 @@ def feature_consistency_loss(f, label, pairs=256):
     return loss
 
 
+def augment_confidence(score, rng, missing=0.25):
+    """One frame's matcher confidence as another matcher might have published it. Users' matchers
+    are calibrated differently (a ratio test, 2D3D-MATR's softmax, none at all), and a network
+    that learned one calibration misreads the others (models/MODEL_CARD.md, *The confidence-rank
+    model*: on raw scores this costs ~3.5 points of extreme-tier RR on the published ones; with
+    --confidence-rank only the constant and the shuffle change the input). Per frame, one of:
+      kept as is (half the frames);
+      a random monotone remap a * s^g (g in [1/3, 3], a in [0.3, 1]): same order, other scale;
+      `missing` for every match (what the runtime feeds for a matcher without confidence:
+      `network.missing_confidence`);
+      shuffled among the frame's matches: the same distribution, no information."""
+    u = rng.random()
+    if u < 0.5:
+        return score
+    if u < 0.75:
+        gamma = float(np.exp(rng.uniform(-np.log(3.0), np.log(3.0))))
+        return rng.uniform(0.3, 1.0) * score.clamp(min=0.0) ** gamma
+    if u < 0.875:
+        return torch.full_like(score, missing)
+    return score[torch.from_numpy(rng.permutation(score.shape[0]))]
+
+
+def confidence_rank(score):
+    """A frame's matcher confidence as within-frame ranks in [0, 1] (ties: their mean rank; one
+    score for every match: 0.5): blind to the matcher's scale, only its order counts."""
+    n = score.shape[0]
+    if n < 2:
+        return torch.full_like(score, 0.5)
+    values = score.numpy().astype(np.float64)
+    values = np.where(np.isfinite(values), values, -np.inf)  # no confidence: the least
+    order = np.argsort(values, kind="stable")
+    ranks = np.empty(n)
+    sorted_values = values[order]
+    start = 0
+    while start < n:
+        end = start
+        while end + 1 < n and sorted_values[end + 1] == sorted_values[start]:
+            end += 1
+        ranks[order[start:end + 1]] = 0.5 * (start + end)
+        start = end + 1
+    return torch.from_numpy((ranks / (n - 1)).astype(np.float32))
+
+
 def metrics(model, samples, tau):
     """Precision/recall of score ≥ τ, and precision of the top-40 scores, over labelled points."""
     tp = fp = fn = 0
@@ -61,7 +104,7 @@ def export(model, sample, path):
     torch.save(model.state_dict(), path.replace(".onnx", ".pt"))
     with open(path.replace(".onnx", ".json"), "w") as f:
         json.dump(model.config, f)
-    args = tuple(sample[k] for k in model.input_names)
+    args = tuple(confidence_rank(sample["matcher_score"]) if k == "matcher_rank" else sample[k] for k in model.input_names)
     n, v, k, m = torch.export.Dim("n"), torch.export.Dim("v"), torch.export.Dim("k"), torch.export.Dim("m")
     dims = {"features": {0: n}, "local_index": {0: v, 1: k}, "local_theta": {0: v, 1: k, 2: k},
             "global_index": {0: m}, "global_theta": {0: m, 1: m}, "cross_theta": {0: n, 1: m}}
@@ -87,15 +130,26 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--alpha", type=float, default=0.75, help="focal loss weight of the inlier class")
+    ap.add_argument("--augment-confidence", action="store_true",
+                    help="rewrite half the frames' matcher confidence as other matchers publish it")
+    ap.add_argument("--confidence-rank", action="store_true",
+                    help="feed the matcher's confidence as within-frame ranks, input `matcher_rank` (after any "
+                         "augmentation): a model blind to the matcher's scale")
     ap.add_argument("--consistency-weight", type=float, default=0.0,
                     help="weight of the feature-consistency loss (GraphSCNet), 0: focal loss only")
     a = ap.parse_args()
     torch.manual_seed(a.seed); random.seed(a.seed)
+    rng = np.random.default_rng(a.seed)
     torch.set_num_threads(a.threads)
     train = [s for d in a.train for s in load_dir(d)]
     val = {d: load_dir(d) for d in a.val}
+    if a.confidence_rank:
+        for v in val.values():
+            for s in v:
+                s["matcher_rank"] = confidence_rank(s["matcher_score"])
     print(f"{len(train)} training samples; val: " + ", ".join(f"{d}: {len(v)}" for d, v in val.items()), flush=True)
-    model = AngleI2PNet(d=a.d, blocks=a.blocks, use_global=not a.no_global, use_matcher_score=a.matcher_score)
+    model = AngleI2PNet(d=a.d, blocks=a.blocks, use_global=not a.no_global, use_matcher_score=a.matcher_score,
+                        matcher_input="matcher_rank" if a.confidence_rank else "matcher_score")
     if a.init:
         # Fine-tuning: start from trained weights of the same shape (e.g. on a wider data mix).
         model.load_state_dict(torch.load(a.init))
@@ -106,7 +160,12 @@ def main():
         t0, total = time.time(), 0.0
         model.train()
         for s in train:
-            f = model.embed_correspondences(*[s[k] for k in model.input_names])
+            inputs = dict(s)
+            if a.augment_confidence and model.use_matcher_score:
+                inputs["matcher_score"] = augment_confidence(s["matcher_score"], rng)
+            if a.confidence_rank and model.use_matcher_score:
+                inputs["matcher_rank"] = confidence_rank(inputs["matcher_score"])
+            f = model.embed_correspondences(*[inputs[k] for k in model.input_names])
             loss = focal_loss(model.score(f), s["labels"], alpha=a.alpha)
             if a.consistency_weight > 0:
                 loss = loss + a.consistency_weight * feature_consistency_loss(f, s["labels"])
