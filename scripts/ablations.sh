@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The paper's ablations (section 4.4) on the shared validation bags, each replayed and scored by
 # `angle-i2p eval`: the method; the model trained on rooms only and the ablation models trained
-# like it (no global attention, distance θ, no scale alignment, no matcher score); keypoints by
+# like it (no global attention, distance θ, no scale alignment, no matcher score); the shipped
+# model's training with the matcher's confidence as within-frame ranks; keypoints by
 # spectral score only; τ ∈ {0.1, 0.2, 0.4, 0.5}; the PnP without the prior check, with plain
 # inlier counting and without verification against the dense prior (`verify`); the
 # training-free rejectors (distance and angle spectral consistency; also with ≥ 1500 PnP
@@ -21,6 +22,7 @@ rows=(
   "distance-theta|--method angle-i2p --params-file params/ablations/distance_theta.yaml"
   "no-scale-alignment|--method angle-i2p --params-file params/ablations/no_scale_alignment.yaml"
   "no-matcher-score|--method angle-i2p --params-file params/ablations/no_matcher_score.yaml"
+  "confidence-rank-model|--method angle-i2p --params-file params/ablations/confidence_rank.yaml"
   "keypoints-spectral-only|--method angle-i2p -p network.keypoint_ranking:=spectral"
   "tau-0.1|--method angle-i2p -p network.tau:=0.1"
   "tau-0.4|--method angle-i2p -p network.tau:=0.4"

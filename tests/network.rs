@@ -53,6 +53,7 @@ fn inputs_in(dir: &Path) -> NetworkInputs {
         },
         spectral_scores: f32s(dir, "spectral"),
         matcher_scores: f32s(dir, "correspondences").chunks_exact(6).map(|c| c[5]).collect(),
+        matcher_ranks: Vec::new(),
     }
 }
 
@@ -110,6 +111,27 @@ fn a_model_without_global_inputs_runs_on_the_same_inputs() {
     let scores = rejector.run(&inputs).unwrap();
     assert_eq!(scores.len(), inputs.features.len());
     assert!(scores.iter().all(|s| (0.0..=1.0).contains(s)));
+}
+
+/// The model that takes the matcher's confidence as within-frame ranks
+/// (`models/ablations/confidence_rank.onnx`, input `matcher_rank`) scores the same inputs, and
+/// a matcher publishing the same order on another scale (cubed, shifted) gets the same scores.
+#[test]
+fn the_rank_model_scores_any_calibration_of_the_same_order_alike() {
+    let Some(mut ranked) = rejector("ablations/confidence_rank.onnx") else { return };
+    let mut inputs = stored_inputs();
+    inputs.rank_matcher_scores();
+    let scores = ranked.run(&inputs).unwrap();
+    assert_eq!(scores.len(), inputs.features.len());
+    assert!(scores.iter().all(|s| (0.0..=1.0).contains(s)));
+    let mut recalibrated = stored_inputs();
+    recalibrated.matcher_scores.iter_mut().for_each(|s| *s = 5.0 * *s * *s * *s + 2.0);
+    recalibrated.rank_matcher_scores();
+    assert_eq!(ranked.run(&recalibrated).unwrap(), scores);
+    let mut shuffled = stored_inputs();
+    shuffled.matcher_scores.reverse();
+    shuffled.rank_matcher_scores();
+    assert_ne!(ranked.run(&shuffled).unwrap(), scores, "the order is an input");
 }
 
 /// The model trained on rooms only (`models/ablations/rooms_only.onnx`, the default before the

@@ -5,6 +5,10 @@
 #   models/angle_i2p.onnx                       the shipped model: rooms_only fine-tuned on the whole
 #                                               mix (other sensors, scenes, buildings, priors), the
 #                                               real frames weighted ×4
+#   models/ablations/confidence_rank.onnx       the shipped model's training with the matcher's
+#                                               confidence as within-frame ranks (input
+#                                               matcher_rank), rewritten in training as other
+#                                               matchers publish it: blind to its calibration
 #   models/ablations/no_global.onnx             local attention only (same inputs)
 #   models/ablations/distance_theta.onnx        graphs' θ from length consistency
 #   models/ablations/no_scale_alignment.onnx    raw prior cloud, no scale alignment
@@ -37,6 +41,10 @@ $py train.py --train data/angle/train $real $real $real --val data/angle/val/har
   --out ../models/angle_i2p.onnx --epochs 6 --lr 3e-4 --alpha 0.9 --threads 2 --matcher-score \
   --init ../models/ablations/rooms_only.pt > ../models/angle_i2p.log 2>&1
 $py parity.py --weights ../models/angle_i2p.pt --sample ../models/parity/sample
+# shellcheck disable=SC2086
+$py train.py --train data/angle/train $real $real $real --val data/angle/val/hard-val data/angle/val/extreme-val \
+  --out ../models/ablations/confidence_rank.onnx --epochs 6 --lr 3e-4 --alpha 0.9 --threads 2 --matcher-score \
+  --init ../models/ablations/rooms_only.pt --confidence-rank --augment-confidence > ../models/ablations/confidence_rank.log 2>&1
 train angle ../models/ablations/no_global.onnx --matcher-score --no-global
 train distance ../models/ablations/distance_theta.onnx --matcher-score
 train no-scale-alignment ../models/ablations/no_scale_alignment.onnx --matcher-score

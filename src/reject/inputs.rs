@@ -23,6 +23,9 @@ pub struct NetworkInputs {
     pub spectral_scores: Vec<f32>,
     /// The matcher's confidence per correspondence (an input of models trained with it).
     pub matcher_scores: Vec<f32>,
+    /// Its within-frame ranks in [0, 1], for a model that takes `matcher_rank` instead (blind to
+    /// the matcher's scale): filled by [`NetworkInputs::rank_matcher_scores`], else empty.
+    pub matcher_ranks: Vec<f32>,
 }
 
 /// The values of one input tensor, in the element type the network declares: the f32 ones
@@ -60,7 +63,7 @@ impl NetworkInputs {
         let index = |v: &[u32]| TensorValues::I64(v.iter().map(|&i| i as i64).collect());
         let f32s = |v| TensorValues::F32(Cow::Borrowed(v));
         let tensor = |name, shape: &[usize], values| InputTensor { name, shape: shape.to_vec(), values };
-        vec![
+        let mut tensors = vec![
             tensor("features", &[n, FEATURE_DIM], f32s(self.features.as_flattened())),
             tensor("local_index", &[g.nodes, g.neighbours], index(&g.local_index)),
             tensor("local_theta", &[g.nodes, g.neighbours, g.neighbours], f32s(&g.local_theta)),
@@ -68,7 +71,43 @@ impl NetworkInputs {
             tensor("global_theta", &[m, m], f32s(&g.global_theta)),
             tensor("cross_theta", &[n, m], f32s(&g.cross_theta)),
             tensor("matcher_score", &[n], f32s(&self.matcher_scores)),
-        ]
+        ];
+        if self.matcher_ranks.len() == n {
+            tensors.push(tensor("matcher_rank", &[n], f32s(&self.matcher_ranks)));
+        }
+        tensors
+    }
+
+    /// Fills `matcher_ranks` from `matcher_scores` ([`within_frame_ranks`]).
+    pub fn rank_matcher_scores(&mut self) {
+        within_frame_ranks(&self.matcher_scores, &mut self.matcher_ranks);
+    }
+}
+
+/// Each score's rank among the frame's, scaled to [0, 1] (the lowest 0, the highest 1; equal
+/// scores share their mean rank, so one score for every match gives 0.5 to all; a non-finite
+/// score counts as the lowest), into `ranks`. Any increasing remap of the scores gives the same
+/// ranks: what a model trained on them sees does not depend on the matcher's calibration.
+/// `training/train.py` (`confidence_rank`) computes the same.
+pub fn within_frame_ranks(scores: &[f32], ranks: &mut Vec<f32>) {
+    let n = scores.len();
+    ranks.clear();
+    ranks.resize(n, 0.5);
+    if n < 2 {
+        return;
+    }
+    let key = |i: usize| if scores[i].is_finite() { scores[i] } else { f32::NEG_INFINITY };
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by(|&a, &b| key(a).total_cmp(&key(b)));
+    let scale = 1.0 / (n - 1) as f64;
+    let mut start = 0;
+    while let Some(&first) = order.get(start) {
+        let end = start + order[start..].iter().take_while(|&&i| key(i) == key(first)).count();
+        let rank = (0.5 * (start + end - 1) as f64 * scale) as f32;
+        for &i in &order[start..end] {
+            ranks[i] = rank;
+        }
+        start = end;
     }
 }
 
@@ -158,7 +197,45 @@ fn keypoint_ranks(spectral: &[f32], geometry: &FrameGeometry, params: &NetworkPa
 
 #[cfg(test)]
 mod tests {
-    use super::impute_missing_confidence;
+    use super::{impute_missing_confidence, within_frame_ranks, NetworkInputs};
+
+    fn ranks(scores: &[f32]) -> Vec<f32> {
+        let mut out = Vec::new();
+        within_frame_ranks(scores, &mut out);
+        out
+    }
+
+    /// Lowest 0, highest 1, ties share their mean rank, non-finite scores are the lowest; one
+    /// score for all (a matcher without confidence) or a single match reads 0.5.
+    #[test]
+    fn ranks_span_zero_to_one_with_ties_at_their_mean() {
+        assert_eq!(ranks(&[0.3, 0.1, 0.3, 0.9]), vec![0.5, 0.0, 0.5, 1.0]);
+        assert_eq!(ranks(&[f32::NAN, 0.2, 0.1]), vec![0.0, 1.0, 0.5]);
+        assert_eq!(ranks(&[0.7; 4]), vec![0.5; 4]);
+        assert_eq!(ranks(&[0.7]), vec![0.5]);
+        assert!(ranks(&[]).is_empty());
+    }
+
+    /// What the ranks exist for: a matcher's scores and any increasing remap of them (another
+    /// calibration: scaled, cubed, squared away from 0–1) give the same input.
+    #[test]
+    fn ranks_ignore_the_matchers_calibration() {
+        let scores: Vec<f32> = (0..50).map(|i| ((i * 37 % 50) as f32 + 0.5) / 50.0).collect();
+        let remapped: Vec<f32> = scores.iter().map(|s| 3.0 * s * s * s + 10.0).collect();
+        assert_eq!(ranks(&scores), ranks(&remapped));
+    }
+
+    /// `matcher_rank` is an input tensor only once the ranks are filled (a model that names it).
+    #[test]
+    fn the_rank_tensor_is_fed_once_filled() {
+        let mut inputs = NetworkInputs { matcher_scores: vec![0.2, 0.4], ..NetworkInputs::default() };
+        inputs.features = vec![[0.0; super::FEATURE_DIM]; 2];
+        let names = |i: &NetworkInputs| i.tensors().iter().map(|t| t.name).collect::<Vec<_>>();
+        assert!(!names(&inputs).contains(&"matcher_rank"));
+        inputs.rank_matcher_scores();
+        assert!(names(&inputs).contains(&"matcher_rank"));
+        assert_eq!(inputs.matcher_ranks, vec![0.0, 1.0]);
+    }
 
     #[test]
     fn one_score_for_every_match_reads_as_the_missing_confidence() {

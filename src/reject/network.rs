@@ -81,6 +81,8 @@ pub struct NetworkRejector {
     /// their buffers are allocated once.
     inputs: NetworkInputs,
     scratch: InputScratch,
+    /// The model takes the matcher's confidence as within-frame ranks (`matcher_rank`).
+    ranks_confidence: bool,
 }
 
 impl NetworkRejector {
@@ -102,6 +104,7 @@ impl NetworkRejector {
             .and_then(|mut b| b.commit_from_file(&model_path))
             .map_err(|e| model_err(e.to_string()))?;
         let spectral = SpectralRejector::new(params.keypoint_spectral(spectral));
+        let ranks_confidence = session.inputs().iter().any(|i| i.name() == "matcher_rank");
         Ok(Self {
             params,
             session,
@@ -109,12 +112,17 @@ impl NetworkRejector {
             map: None,
             inputs: NetworkInputs::default(),
             scratch: InputScratch::default(),
+            ranks_confidence,
         })
     }
 
     /// The network's inputs for one frame (eq. 9 features, graphs, θ).
     pub fn inputs(&mut self, geometry: &FrameGeometry) -> NetworkInputs {
-        build_inputs(geometry, self.map.as_deref(), &mut self.spectral, &self.params)
+        let mut inputs = build_inputs(geometry, self.map.as_deref(), &mut self.spectral, &self.params);
+        if self.ranks_confidence {
+            inputs.rank_matcher_scores();
+        }
+        inputs
     }
 
     /// The network's scores for prepared inputs.
@@ -130,7 +138,8 @@ fn score(session: &mut Session, inputs: &NetworkInputs) -> Result<Vec<f32>, Reje
     let mut values: Vec<(Cow<'static, str>, SessionInputValue<'_>)> = Vec::new();
     for t in inputs.tensors() {
         // Each model takes the inputs it declares: one without global attention (the ablation)
-        // has no global ones, one trained without the matcher's confidence has no `matcher_score`.
+        // has no global ones, one trained without the matcher's confidence has no `matcher_score`
+        // (and one trained on its ranks has `matcher_rank` instead).
         if !session.inputs().iter().any(|i| i.name() == t.name) {
             continue;
         }
@@ -164,6 +173,9 @@ impl Rejector for NetworkRejector {
         }
         let map = self.map.as_deref();
         build_inputs_into(&mut self.inputs, geometry, map, &mut self.spectral, &self.params, &mut self.scratch);
+        if self.ranks_confidence {
+            self.inputs.rank_matcher_scores();
+        }
         let scores = score(&mut self.session, &self.inputs)?;
         let mut kept: Vec<usize> = top_k(&scores, scores.len());
         let above = kept.iter().take_while(|&&i| f64::from(scores[i]) >= self.params.tau).count();
