@@ -256,6 +256,39 @@ fn a_matcher_without_confidence_is_read_the_same_whatever_constant_it_sends() {
     }
 }
 
+/// With the confidence-rank model (`params/ablations/confidence_rank.yaml`: the network takes
+/// the confidence's within-frame ranks and the keypoints are ranked by them), a matcher that
+/// publishes the same order on another scale (here 10·s³) gets the same poses and kept sets
+/// as the published scores: nothing downstream sees more than the order.
+#[test]
+fn the_rank_model_localizes_any_calibration_of_the_same_order_alike() {
+    if onnx_runtime().is_none() {
+        return;
+    }
+    let scene = generate(&SynthConfig { frames: 3, seed: 11, ..SynthConfig::preset("extreme").unwrap() });
+    let mut recalibrated = scene.frames.clone();
+    // Strictly increasing in f32 over the scores (an offset would merge the smallest cubes).
+    recalibrated.iter_mut().flat_map(|f| f.correspondences.iter_mut()).for_each(|c| c.score = 10.0 * c.score.powi(3));
+    let mut params = LocalizerParams::default();
+    params.network.model_path = "models/ablations/confidence_rank.onnx".into();
+    params.network.keypoint_ranking = angle_i2p::reject::network::KeypointRanking::SpectralMatcherRank;
+    let localize = |frames: &[Frame]| {
+        let mut localizer = Localizer::new(params.clone()).expect("a localizer");
+        localizer.set_map(&scene.map);
+        frames.iter().map(|f| localizer.process(f)).collect::<Vec<_>>()
+    };
+    let (published, other) = (localize(&scene.frames), localize(&recalibrated));
+    for ((a, b), f) in published.iter().zip(&other).zip(&scene.frames) {
+        assert_eq!(a.pose, b.pose);
+        let scores = |l: &angle_i2p::pipeline::Localization| l.kept.iter().map(|c| c.score).collect::<Vec<_>>();
+        assert_eq!(scores(a), scores(b));
+        let gt = f.ground_truth.as_ref().expect("ground truth");
+        let (pose, depth) = (gt.pose.as_ref().expect("gt pose"), gt.depth.as_ref().expect("gt depth"));
+        let errors = pose_errors(&a.pose.expect("a pose"), pose, &f.intrinsics, depth);
+        assert!(errors.registered(), "{errors:?}");
+    }
+}
+
 /// The cascade (issue #9): frames with a clear majority of good matches end on the fast path
 /// (no rejection), hard frames go on to the rejector; both are localized.
 #[test]

@@ -24,6 +24,7 @@ mkdir -p ../models/ablations
 ./make_dataset.sh training/data/angle
 ./make_dataset.sh training/data/distance training/variants/distance.yaml
 ./make_dataset.sh training/data/no-scale-alignment training/variants/no_scale_alignment.yaml
+./make_dataset.sh training/data/rank training/variants/confidence_rank.yaml
 rooms() { # data: the default room's synthetic bags and the real redkitchen frames
   echo data/"$1"/train/synth-hard-* data/"$1"/train/synth-extreme-* data/"$1"/train/*-train
 }
@@ -41,8 +42,10 @@ $py train.py --train data/angle/train $real $real $real --val data/angle/val/har
   --out ../models/angle_i2p.onnx --epochs 6 --lr 3e-4 --alpha 0.9 --threads 2 --matcher-score \
   --init ../models/ablations/rooms_only.pt > ../models/angle_i2p.log 2>&1
 $py parity.py --weights ../models/angle_i2p.pt --sample ../models/parity/sample
+# The confidence-rank model: its own dataset (keypoints ranked by the confidence's rank).
+ranked="data/rank/train/hard-train data/rank/train/extreme-train data/rank/train/sift-train"
 # shellcheck disable=SC2086
-$py train.py --train data/angle/train $real $real $real --val data/angle/val/hard-val data/angle/val/extreme-val \
+$py train.py --train data/rank/train $ranked $ranked $ranked --val data/rank/val/hard-val data/rank/val/extreme-val \
   --out ../models/ablations/confidence_rank.onnx --epochs 6 --lr 3e-4 --alpha 0.9 --threads 2 --matcher-score \
   --init ../models/ablations/rooms_only.pt --confidence-rank --augment-confidence > ../models/ablations/confidence_rank.log 2>&1
 train angle ../models/ablations/no_global.onnx --matcher-score --no-global

@@ -181,7 +181,7 @@ fn impute_missing_confidence(scores: &mut [f32], missing: f32) {
 }
 
 /// The scores that pick the keypoints ([`KeypointRanking`]). A matcher that publishes no
-/// confidence (all zero) leaves the spectral order.
+/// confidence (all zero; with ranks, all 0.5) leaves the spectral order.
 fn keypoint_ranks(spectral: &[f32], geometry: &FrameGeometry, params: &NetworkParams, ranks: &mut Vec<f32>) {
     ranks.clear();
     match params.keypoint_ranking {
@@ -192,6 +192,12 @@ fn keypoint_ranks(spectral: &[f32], geometry: &FrameGeometry, params: &NetworkPa
                 .zip(&geometry.matcher_scores)
                 .map(|(&s, &m)| s * (if m.is_finite() { m.clamp(0.0, 1.0) } else { 0.0 } + 1e-3)),
         ),
+        KeypointRanking::SpectralMatcherRank => {
+            within_frame_ranks(&geometry.matcher_scores, ranks);
+            for (r, &s) in ranks.iter_mut().zip(spectral) {
+                *r = s * (*r + 1e-3);
+            }
+        }
     }
 }
 

@@ -52,6 +52,10 @@ pub enum KeypointRanking {
     /// the matcher's own certainty, as a detector's score would add to it.
     #[default]
     SpectralMatcher,
+    /// Spectral score × the confidence's within-frame rank ([`super::inputs::within_frame_ranks`]):
+    /// the same, blind to the matcher's calibration (with a model that takes `matcher_rank`, any
+    /// increasing remap of the scores then localizes alike).
+    SpectralMatcherRank,
 }
 
 impl Default for NetworkParams {
