@@ -267,7 +267,7 @@ fn refine_scale_shift(terms: &[PairTerms], rays: &[Vector3<f64>], params: &Scale
         let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
         let mut used = 0usize;
         for c in terms {
-            let Some(PairResidual { r, js, jt }) = pair_residual(c, rays, est) else { continue };
+            let Some(PairResidual { r, js, jt }) = pair_residual(c, rays, est, tol) else { continue };
             if r.abs() > tol * c.map_len {
                 continue;
             }
@@ -306,10 +306,13 @@ struct PairResidual {
     jt: f64,
 }
 
-/// [`PairResidual`] of pair `c`; `None` where a depth is not positive or the image length vanishes.
+/// [`PairResidual`] of pair `c`; `None` where a depth is not positive, the image length vanishes,
+/// or (depth space) the length is clearly outside `tol` of the map length, decided on its square
+/// before the root and divisions (most pairs are outliers): with a margin far above rounding, so
+/// a pair that the caller's exact test `|r| ≤ tol·map_len` keeps is never dropped here.
 /// In depth space the image difference is scale·a + shift·b (a = r_i x_i − r_j x_j, b = r_i − r_j),
 /// so its length and derivatives come from the pair's a·a, a·b, b·b alone.
-fn pair_residual(c: &PairTerms, rays: &[Vector3<f64>], est: &ScaleShift) -> Option<PairResidual> {
+fn pair_residual(c: &PairTerms, rays: &[Vector3<f64>], est: &ScaleShift, tol: f64) -> Option<PairResidual> {
     let (zi, zj) = (est.depth(c.xi), est.depth(c.xj));
     if !(zi > 0.0 && zj > 0.0 && zi.is_finite() && zj.is_finite()) {
         return None;
@@ -320,7 +323,7 @@ fn pair_residual(c: &PairTerms, rays: &[Vector3<f64>], est: &ScaleShift) -> Opti
             let ab = 0.5 * c.two_ab;
             let (diff_a, diff_b) = (s * c.aa + h * ab, s * ab + h * c.bb);
             let len2 = s * diff_a + h * diff_b;
-            if !(len2 >= 1e-18) {
+            if !(len2 >= 1e-18) || clearly_outside(len2, c.map_len, tol) {
                 return None;
             }
             let len = len2.sqrt();
@@ -339,6 +342,15 @@ fn pair_residual(c: &PairTerms, rays: &[Vector3<f64>], est: &ScaleShift) -> Opti
             Some(PairResidual { r: len - c.map_len, js, jt })
         }
     }
+}
+
+/// Whether a squared length `len2` is surely off `map_len` by more than `tol`·`map_len`: outside
+/// the squared band widened by 1e-9 relative (the exact test's rounding is ~1e-16).
+fn clearly_outside(len2: f64, map_len: f64, tol: f64) -> bool {
+    const MARGIN: f64 = 1e-9;
+    let high = map_len * (1.0 + tol);
+    let low = map_len * (1.0 - tol);
+    len2 > high * high * (1.0 + MARGIN) || (low > 0.0 && len2 < low * low * (1.0 - MARGIN))
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {

@@ -102,9 +102,16 @@ fn linearize(
         let (e, f) = (cam.fy * iz, -cam.fy * x.y * iz * iz);
         let ju = Vector6::new(c * x.y, a * x.z - c * x.x, -a * x.y, a, 0.0, c);
         let jv = Vector6::new(-e * x.z + f * x.y, -f * x.x, e * x.x, 0.0, e, f);
-        h += (ju * ju.transpose() + jv * jv.transpose()) * w;
+        // H is symmetric: its upper triangle is accumulated (each entry the same products in
+        // the same order as the full outer products would give it) and mirrored once below.
+        for r in 0..6 {
+            for c in r..6 {
+                h[(r, c)] += (ju[r] * ju[c] + jv[r] * jv[c]) * w;
+            }
+        }
         g += (ju * ru + jv * rv) * w;
     }
+    h.fill_lower_triangle_with_upper_triangle();
     Linearization { cost, h, g }
 }
 
