@@ -163,6 +163,13 @@ impl LocalizerParams {
         let c = &self.cascade;
         at_least("cascade.max_iterations", c.max_iterations as u64, 1, "at least 1")?;
         at_least("cascade.probe_iterations", c.probe_iterations as u64, 1, "at least 1")?;
+        if c.min_iterations > c.max_iterations {
+            return Err(InvalidParam {
+                key: "cascade.min_iterations",
+                value: c.min_iterations.to_string(),
+                range: "at most cascade.max_iterations",
+            });
+        }
         real("cascade.min_inlier_ratio", c.min_inlier_ratio, Range::Unit)?;
         real("cascade.min_cell_share", c.min_cell_share, Range::Unit)?;
         at_least("cascade.grid_columns", c.grid_columns as u64, 1, "at least 1")
@@ -225,6 +232,7 @@ mod tests {
             ("pnp.threshold_px", Box::new(|p| p.localizer.pnp.threshold_px = f64::NAN)),
             ("pnp.confidence", Box::new(|p| p.localizer.pnp.confidence = 2.0)),
             ("pnp.max_iterations", Box::new(|p| p.localizer.pnp.max_iterations = 0)),
+            ("cascade.min_iterations", Box::new(|p| p.localizer.cascade.min_iterations = 401)),
             ("network.tau", Box::new(|p| p.localizer.network.tau = 1.5)),
             ("network.missing_confidence", Box::new(|p| p.localizer.network.missing_confidence = -0.5)),
             ("verify.min_support_share", Box::new(|p| p.localizer.verify.min_support_share = 1.5)),

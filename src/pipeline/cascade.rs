@@ -16,6 +16,11 @@ pub struct CascadeParams {
     /// 99.99 % confidence down to an inlier ratio of ~0.29, the lowest one `min_inlier_ratio`
     /// accepts.
     pub max_iterations: usize,
+    /// Hypotheses drawn at least before adaptive stopping may end an attempt (PoseLib's and the
+    /// guided PnP's floor is 100): an easy frame whose best pose already explains most matches
+    /// is certain after ~10 draws at 99.99 %, and whatever it draws beyond is the fast path's
+    /// whole cost; the settling bar (`min_inlier_ratio`, `min_cell_share`) is unchanged.
+    pub min_iterations: usize,
     /// Hypotheses of the first, short attempt; a frame whose support then is under half
     /// `min_inlier_ratio` skips the rest of the budget.
     pub probe_iterations: usize,
@@ -39,6 +44,7 @@ impl Default for CascadeParams {
         Self {
             enabled: true,
             max_iterations: 400,
+            min_iterations: 20,
             probe_iterations: 100,
             min_inlier_ratio: 0.3,
             min_cell_share: 0.5,
@@ -68,6 +74,7 @@ impl CascadeParams {
         gate: Option<&PoseGate>,
     ) -> Result<PnpSolution, FastPathCheck> {
         let matches = Matches::of(frame);
+        let pnp = &PnpParams { min_iterations: self.min_iterations, ..pnp.clone() };
         let budget = self.max_iterations.max(1);
         // A short probe first: a frame whose best support after it is under half the bar is
         // hard (a true ratio at the bar is all but certain to show more by then) and goes on
