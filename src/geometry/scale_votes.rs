@@ -6,6 +6,9 @@ pub(crate) struct ScaleVotes {
     /// Bins per vote window.
     window: usize,
     bin_width: f64,
+    /// 1 / `bin_width`: a vote's bin by a product, not a division (the division's latency was
+    /// a quarter of the alignment; the bins differ only for a vote within an ulp of an edge).
+    per_bin: f64,
 }
 
 impl ScaleVotes {
@@ -16,7 +19,7 @@ impl ScaleVotes {
     pub(crate) fn new(window: f64) -> Self {
         let bin_width = window.max(1e-4) / Self::BINS_PER_WINDOW as f64;
         let n = (2.0 * Self::LOG_RANGE / bin_width).ceil() as usize + 1;
-        Self { bins: vec![0; n], window: Self::BINS_PER_WINDOW, bin_width }
+        Self { bins: vec![0; n], window: Self::BINS_PER_WINDOW, bin_width, per_bin: 1.0 / bin_width }
     }
 
     pub(crate) fn clear(&mut self) {
@@ -24,7 +27,7 @@ impl ScaleVotes {
     }
 
     pub(crate) fn add(&mut self, log_scale: f64) {
-        let k = (log_scale + Self::LOG_RANGE) / self.bin_width;
+        let k = (log_scale + Self::LOG_RANGE) * self.per_bin;
         // For k ≥ 0, `k < len` is `(k as usize) < len` (len is whole), and then `k as u32` is the
         // same floor: the hot loop (a vote per pair and shift) skips the saturating conversion
         // to u64, which baseline x86-64 does in software.
