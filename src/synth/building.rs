@@ -105,6 +105,7 @@ impl SynthRun {
         let [l, w, h] = config.room_size;
         let layout = BuildingLayout { rooms_per_row: config.building_rooms, room: Vector3::new(l, w, h) };
         let scene = match config.building_rooms {
+            0 if config.repeat_period_m > 0.0 => Scene::office(layout.room, config.repeat_period_m, &mut rng),
             0 => Scene::room(layout.room, &mut rng),
             _ => Scene::building(&layout, &mut rng),
         };
@@ -162,7 +163,9 @@ fn published_map(scene: &Scene, config: &SynthConfig, matcher_map: &MapCloud) ->
     let density = extra as f64 / (area * visible);
     let mut points = Vec::with_capacity(matcher_map.points.len() + extra + extra / 8);
     points.extend_from_slice(&matcher_map.points);
-    points.extend(scene.sample_surfaces_parallel(density, config.cloud_noise_m, mix64(config.seed ^ 0xDE45_1F1E)));
+    let drift = super::drift::MapDrift::of(config);
+    let sampled = scene.sample_surfaces_parallel(density, config.cloud_noise_m, mix64(config.seed ^ 0xDE45_1F1E));
+    points.extend(sampled.into_iter().map(|p| drift.apply(&p.cast::<f64>()).cast::<f32>()));
     MapCloud { frame_id: matcher_map.frame_id.clone(), points }
 }
 

@@ -8,9 +8,10 @@ use crate::geometry::Intrinsics;
 /// Tiers accepted by [`SynthConfig::preset`] (the match quality).
 pub const PRESETS: [&str; 4] = ["sift", "hard", "extreme", "easy"];
 /// Modifiers a tier may be joined with by `+` in [`SynthConfig::preset`]: the sensor and scene
-/// (`close`, `hd`, `wide`), the map (`small-map`, `large-map`) and the prior (`harsh`, `disparity`).
-pub const PRESET_MODIFIERS: [&str; 8] =
-    ["close", "hd", "wide", "small-map", "large-map", "harsh", "disparity", "building"];
+/// (`close`, `hd`, `wide`, `office`), the map (`small-map`, `large-map`) and the prior (`harsh`,
+/// `disparity`).
+pub const PRESET_MODIFIERS: [&str; 9] =
+    ["close", "hd", "wide", "small-map", "large-map", "harsh", "disparity", "building", "office"];
 /// Rooms per row of a building, at most.
 pub const MAX_BUILDING_ROOMS: usize = 32;
 /// Map points `synth` makes, at most.
@@ -111,6 +112,20 @@ pub struct SynthConfig {
     /// 0: the map as sampled. N: about N points — the sampled map (which the matches are
     /// drawn from, so frames do not change with N) plus points sampled on the same surfaces.
     pub map_points: usize,
+    /// Rows of identical cubicles (desk, partition, chair) along the long walls, one every this
+    /// many metres; 0: none.
+    pub repeat_period_m: f64,
+    /// Share of the wrong matches on a cubicle that land on the same spot of the next cubicle of
+    /// its row (one direction per frame, as a matcher that confuses the copies does): groups of
+    /// wrong matches that agree with each other as rigidly as the true ones.
+    pub repeat_outlier_fraction: f64,
+    /// A map fused from keyframes with structure-from-motion pose errors: regions of this side
+    /// (m) each moved by one rigid error ([`super::drift::MapDrift`]); 0: an exact map.
+    pub map_keyframe_m: f64,
+    /// Range of a region's rotation error, degrees.
+    pub map_rotation_deg: [f64; 2],
+    /// Range of a region's offset, metres.
+    pub map_offset_m: [f64; 2],
 }
 
 impl Default for SynthConfig {
@@ -154,6 +169,11 @@ impl Default for SynthConfig {
             prior_kind: SynthPriorKind::Depth,
             building_rooms: 0,
             map_points: 0,
+            repeat_period_m: 0.0,
+            repeat_outlier_fraction: 0.0,
+            map_keyframe_m: 0.0,
+            map_rotation_deg: [0.5, 1.5],
+            map_offset_m: [0.01, 0.04],
         }
     }
 }
@@ -169,6 +189,10 @@ impl SynthConfig {
     /// * `hd`: 1280×720, f = 900 px, an 8 × 6 m room; `wide`: 640×480, f = 400 px (~77° FOV);
     /// * `small-map`: a sparse map (voxels of 8 cm: a few thousand points); `large-map`: a dense
     ///   one (voxels of 1 cm);
+    /// * `office`: an office seen by an Asus Xtion (640×480, f = 570 px) — rows of identical
+    ///   cubicles 1.6–4 m away, a third of the wrong matches on them landing on the next copy,
+    ///   and a map fused from 2 m keyframe regions each off by 0.5–1.5° and 1–4 cm, as maps built
+    ///   from structure-from-motion poses are;
     /// * `harsh`: a metric-like prior with object-sized errors, far-depth compression, smeared
     ///   edges and a ±20 % warp at an odd resolution; `disparity`: affine-invariant disparity.
     pub fn preset(name: &str) -> Option<SynthConfig> {
@@ -221,6 +245,17 @@ impl SynthConfig {
             },
             "disparity" => SynthConfig { prior_kind: SynthPriorKind::Disparity, ..self },
             "building" => super::building::preset(self),
+            "office" => SynthConfig {
+                room_size: [9.0, 6.5, 2.8],
+                path_radius_m: 0.6,
+                camera_height_m: 1.4,
+                repeat_period_m: 1.5,
+                repeat_outlier_fraction: 0.35,
+                map_keyframe_m: 2.0,
+                // The fused map's few centimetres of error are inside a true match's tolerance.
+                inlier_threshold_m: 0.1,
+                ..resize(self, 640, 480, 570.0)
+            },
             _ => return None,
         })
     }
@@ -262,6 +297,10 @@ impl SynthConfig {
         let fy = pos(self.fy, d.fy * height as f64 / d.height as f64);
         let cx = fin(self.cx, width as f64 / 2.0);
         let cy = fin(self.cy, height as f64 / 2.0);
+        let ordered = |[lo, hi]: [f64; 2], dflt: [f64; 2], max: f64| {
+            let (lo, hi) = (nonneg(lo, dflt[0]).min(max), nonneg(hi, dflt[1]).min(max));
+            [lo.min(hi), lo.max(hi)]
+        };
         let mut scale_range = [pos(self.prior_scale_range[0], 0.4), pos(self.prior_scale_range[1], 2.5)];
         if scale_range[1] < scale_range[0] {
             scale_range.swap(0, 1);
@@ -310,6 +349,15 @@ impl SynthConfig {
             prior_kind: self.prior_kind,
             building_rooms: self.building_rooms.min(MAX_BUILDING_ROOMS),
             map_points: self.map_points.min(MAX_MAP_POINTS),
+            // A cubicle is 1.5 m wide with its partition: copies closer than that would overlap.
+            repeat_period_m: match nonneg(self.repeat_period_m, 0.0) {
+                p if p > 0.0 => p.clamp(1.5, 10.0),
+                _ => 0.0,
+            },
+            repeat_outlier_fraction: unit(self.repeat_outlier_fraction, 0.0),
+            map_keyframe_m: nonneg(self.map_keyframe_m, 0.0),
+            map_rotation_deg: ordered(self.map_rotation_deg, d.map_rotation_deg, 10.0),
+            map_offset_m: ordered(self.map_offset_m, d.map_offset_m, 1.0),
         }
     }
 }

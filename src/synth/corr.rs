@@ -7,6 +7,7 @@ use rand::rngs::StdRng;
 use rand::RngExt;
 use rand_distr::{Beta, Distribution};
 
+use super::drift::MapDrift;
 use super::{gaussian3, lift_pixel, Render, Scene, SynthConfig};
 use crate::frame::{Correspondence, MapCloud};
 use crate::geometry::{Intrinsics, PointIndex};
@@ -46,6 +47,8 @@ struct Candidate {
     inlier_point: Point3<f64>,
     /// Whether `inlier_point` passes the ground-truth inlier test at `pixel`.
     inlier_ok: bool,
+    /// Whether the pixel sees a solid that repeats identically along x (an office's cubicles).
+    repeated: bool,
 }
 
 /// A uniform index below `len` (> 0).
@@ -158,6 +161,8 @@ fn draw_candidate(inp: &CorrInputs, blobs: &[Point2<f64>], rng: &mut StdRng) -> 
     let dir = inp.pose.rotation * Vector3::new((truth_px.x - k.cx) / k.fx, (truth_px.y - k.cy) / k.fy, 1.0);
     let hit = inp.scene.cast(&origin, &dir)?;
     let truth = origin + dir * hit.toi;
+    // The fused map holds the true point where its keyframe's pose error put it.
+    let mapped = MapDrift::of(c).apply(&truth);
     let noise = gaussian3(rng, 1.0);
     let pixel = Point2::new(
         (truth_px.x + noise.x * c.pixel_noise_px).clamp(0.0, w - 1.0),
@@ -166,13 +171,13 @@ fn draw_candidate(inp: &CorrInputs, blobs: &[Point2<f64>], rng: &mut StdRng) -> 
     let snapped = inp
         .index
         .and_then(|index| {
-            let q = Point3::new(truth.x as f32, truth.y as f32, truth.z as f32);
+            let q = Point3::new(mapped.x as f32, mapped.y as f32, mapped.z as f32);
             index.nearest(&q, 1).first().and_then(|&i| inp.map.points.get(i)).map(|p| p.cast::<f64>())
         })
-        .unwrap_or(truth);
+        .unwrap_or(mapped);
     let inlier_point = snapped + gaussian3(rng, c.map_noise_m);
     let inlier_ok = inp.lift(&pixel).is_some_and(|l| (l - inlier_point).norm() < 0.9 * c.inlier_threshold_m);
-    Some(Candidate { pixel, inlier_point, inlier_ok })
+    Some(Candidate { pixel, inlier_point, inlier_ok, repeated: inp.scene.is_repeated(&hit) })
 }
 
 /// 2. Patches, exactly as `patch_outliers`: a random correspondence's pixel, all not yet moved
@@ -227,6 +232,10 @@ fn points_and_scores(
     rng: &mut StdRng,
 ) -> (Vec<Correspondence>, Vec<CorrLabel>) {
     let scores = Scores::new();
+    // A matcher confuses a cubicle with its neighbour on one side in a frame (no draw without
+    // repeated solids, so other scenes keep their sequences).
+    let repeat_shift = repeats(inp.config)
+        .then(|| Vector3::x() * inp.config.repeat_period_m * if rng.random::<bool>() { 1.0 } else { -1.0 });
     let visible: Vec<usize> = (0..inp.render.points.len()).filter(|&i| inp.render.points[i].x.is_finite()).collect();
     let mut correspondences = Vec::with_capacity(cands.len());
     let mut labels = Vec::with_capacity(cands.len());
@@ -235,8 +244,19 @@ fn points_and_scores(
             None => choice.is_inlier[j],
             Some(_) => cand.inlier_ok && rng.random::<f64>() < choice.base_ratio,
         };
-        let point = if base_inlier { cand.inlier_point } else { outlier_point(inp, &visible, cand, rng) };
-        let score = scores.sample(base_inlier, rng);
+        // A confused copy looks exactly like the true match: the matcher is as confident in it.
+        let (point, looks_right) = match repeat_shift {
+            _ if base_inlier => (cand.inlier_point, true),
+            Some(shift)
+                if patch_of[j].is_none()
+                    && cand.repeated
+                    && rng.random::<f64>() < inp.config.repeat_outlier_fraction =>
+            {
+                (cand.inlier_point + shift, true)
+            }
+            _ => (outlier_point(inp, &visible, cand, rng), false),
+        };
+        let score = scores.sample(looks_right, rng);
         let label = match patch_of[j] {
             None if base_inlier => CorrLabel::Inlier,
             None => CorrLabel::Outlier,
@@ -246,6 +266,11 @@ fn points_and_scores(
         labels.push(label);
     }
     (correspondences, labels)
+}
+
+/// Whether the scene's wrong matches include confused copies of a repeated object.
+fn repeats(c: &SynthConfig) -> bool {
+    c.repeat_period_m > 0.0 && c.repeat_outlier_fraction > 0.0
 }
 
 /// A wrong point for `cand`: a near miss, a visible surface point or a random map point,

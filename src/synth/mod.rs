@@ -11,6 +11,7 @@
 mod building;
 mod config;
 mod corr;
+mod drift;
 mod prior;
 mod scene;
 
@@ -168,14 +169,16 @@ fn frames_parallel(ctx: &FrameContext, range: std::ops::Range<usize>) -> Vec<(Fr
     results.into_iter().flatten().collect()
 }
 
-/// The map cloud: surfaces sampled uniformly by area, jittered, voxel-downsampled.
+/// The map cloud: surfaces sampled uniformly by area, jittered, moved by the fused map's drift
+/// ([`drift::MapDrift`]), voxel-downsampled.
 fn map_cloud(scene: &Scene, config: &SynthConfig, rng: &mut StdRng) -> MapCloud {
     let raw = scene.sample_surfaces(config.map_density, rng);
+    let drift = drift::MapDrift::of(config);
     let mut seen = HashSet::new();
     let mut points = Vec::with_capacity(raw.len());
     for p in raw {
         let noise = gaussian3(rng, config.cloud_noise_m);
-        let q = p + noise;
+        let q = drift.apply(&p) + noise;
         if config.map_voxel_m > 0.0 {
             let key = (
                 (q.x / config.map_voxel_m).floor() as i64,

@@ -263,7 +263,59 @@ fn furnishings(room: &RoomSize, rng: &mut StdRng) -> Vec<Solid> {
     ]
 }
 
+/// Name prefix of the solids that repeat identically along a row (see [`Scene::office`]).
+const REPEATED: &str = "cubicle";
+
+/// Two rows of identical cubicles (desk, pedestal, monitor, side partition, chair) along the
+/// long walls, one every `period` metres, the second row the first mirrored across the room.
+fn cubicle_rows(room: &RoomSize, period: f64) -> Vec<Solid> {
+    let (l, w) = (room.l, room.w);
+    let count = ((l - 1.2) / period).floor().max(1.0) as usize;
+    let first = (l - (count - 1) as f64 * period) / 2.0;
+    // (name, centre offset from the cubicle's wall point, half extents), for the row at y = 0.
+    let parts: [(&'static str, [f64; 3], [f64; 3]); 6] = [
+        ("cubicle_desk", [0.0, 0.45, 0.74], [0.6, 0.35, 0.02]),
+        ("cubicle_pedestal", [0.4, 0.45, 0.35], [0.18, 0.3, 0.35]),
+        ("cubicle_monitor", [0.0, 0.3, 0.98], [0.25, 0.02, 0.18]),
+        ("cubicle_partition", [-0.72, 0.6, 0.65], [0.03, 0.6, 0.65]),
+        ("cubicle_chair_seat", [0.0, 1.15, 0.46], [0.24, 0.24, 0.04]),
+        ("cubicle_chair_back", [0.0, 1.4, 0.75], [0.22, 0.03, 0.28]),
+    ];
+    let colour = |name: &str| match name {
+        "cubicle_chair_seat" | "cubicle_chair_back" => ([0.15, 0.15, 0.18], Texture::Fabric),
+        "cubicle_partition" => ([0.55, 0.58, 0.62], Texture::Fabric),
+        "cubicle_monitor" => ([0.08, 0.08, 0.08], Texture::Fabric),
+        _ => ([0.7, 0.66, 0.58], Texture::Wood),
+    };
+    let mut solids = Vec::with_capacity(2 * count * parts.len());
+    for k in 0..count {
+        let x = first + k as f64 * period;
+        for (name, [dx, dy, z], half) in parts {
+            let (albedo, texture) = colour(name);
+            solids.push(solid(name, [x + dx, dy, z], half, 0.0, albedo, texture));
+            solids.push(solid(name, [x - dx, w - dy, z], half, 0.0, albedo, texture));
+        }
+    }
+    solids
+}
+
 impl Scene {
+    /// An open-plan office of interior size `size`: the room's shell and two rows of identical
+    /// cubicles, one every `period` metres along x (its long side).
+    pub fn office(size: Vector3<f64>, period: f64, rng: &mut StdRng) -> Scene {
+        let (l, w, h) = (size.x.max(3.0), size.y.max(3.0), size.z.max(2.0));
+        let room = RoomSize { l, w, h, sx: l / 5.0, sy: w / 4.0 };
+        let mut solids = shell(&room, rng);
+        solids.extend(cubicle_rows(&room, period.max(1.5)));
+        let texture_seed = rng.random::<u64>();
+        Scene { size: Vector3::new(l, w, h), solids, light: Point3::new(l / 2.0, w / 2.0, h - 0.3), texture_seed }
+    }
+
+    /// Whether `hit` is on a solid that repeats identically along x (an office's cubicles).
+    pub fn is_repeated(&self, hit: &Hit) -> bool {
+        self.solids.get(hit.solid).is_some_and(|s| s.name.starts_with(REPEATED))
+    }
+
     /// A furnished room of interior size `size` (defaults ≈ 5 × 4 × 2.7 m). Furniture is
     /// laid out for the default room and scaled horizontally with it; `rng` jitters colours.
     pub fn room(size: Vector3<f64>, rng: &mut StdRng) -> Scene {

@@ -405,3 +405,40 @@ fn modifiers_make_other_sensors_scenes_and_priors() {
         assert!(at(near.1) > at(far.1), "disparity falls with depth");
     }
 }
+
+/// An office: an Xtion's camera, surfaces up to a few metres away, confused copies of a cubicle
+/// that all sit one period along the row from the true point (one direction per frame), and a
+/// map that the fused keyframes' errors moved by centimetres, not decimetres.
+#[test]
+fn an_office_has_confused_copies_and_a_drifted_map() {
+    let office = SynthConfig::preset("hard+office").expect("preset");
+    assert_eq!((office.width, office.height, office.fx), (640, 480, 570.0));
+    let scene = generate(&SynthConfig { frames: 3, seed: 5, ..office.clone() });
+    let period = office.repeat_period_m;
+    let mut copies = 0;
+    for (f, s) in scene.frames.iter().zip(&scene.stats) {
+        assert!(s.median_depth > 1.5 && s.median_depth < 5.0, "median depth {}", s.median_depth);
+        let (pose, depth) = gt(f);
+        let shifts: Vec<f64> = f
+            .correspondences
+            .iter()
+            .filter_map(|c| lift_pixel(&f.intrinsics, &pose, depth, &c.pixel).map(|l| c.point - l))
+            .filter(|d| (d.x.abs() - period).abs() < 0.1 && d.y.abs() < 0.1 && d.z.abs() < 0.1)
+            .map(|d| d.x.signum())
+            .collect();
+        assert!(shifts.windows(2).all(|w| w[0] == w[1]), "one direction a frame");
+        copies += shifts.len();
+        // True matches sit on the drifted map: a few centimetres off the true surface at most.
+        for (c, label) in f.correspondences.iter().zip(&s.labels) {
+            if *label == CorrLabel::Inlier {
+                let lifted = lift_pixel(&f.intrinsics, &pose, depth, &c.pixel).expect("an inlier has depth");
+                assert!((c.point - lifted).norm() < 0.1, "an inlier {} m off", (c.point - lifted).norm());
+            }
+        }
+    }
+    assert!(copies >= 3, "{copies} confused copies in 3 frames");
+    // Without drift or copies the same preset's other scenes keep their outputs.
+    let plain = SynthConfig::preset("hard").expect("preset");
+    assert_eq!(plain.repeat_period_m, 0.0);
+    assert_eq!(plain.map_keyframe_m, 0.0);
+}
