@@ -9,6 +9,11 @@
 //!   below 0.1 m.
 //! * MRE / MTE — mean rotation (degrees) and translation (metres) errors over the frames that
 //!   have an estimate; medians too.
+//!
+//! Beside them, what a user of the published poses sees (not in the reference evaluator):
+//! * availability — the share of frames that got a pose at all;
+//! * false-pose rate — the share of the published poses that are wrong (not registered): a
+//!   likely-wrong pose published as a pose is worse than none.
 
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use serde::Serialize;
@@ -129,6 +134,13 @@ pub struct Summary {
     pub med_re: Option<f64>,
     #[serde(rename = "MedTE")]
     pub med_te: Option<f64>,
+    /// Frames with a published pose, % of all frames.
+    #[serde(rename = "availability")]
+    pub availability: f64,
+    /// Published poses that are wrong (RMSE ≥ the recall threshold), % of the published poses;
+    /// `None` when none was published.
+    #[serde(rename = "false_pose_rate")]
+    pub false_pose_rate: Option<f64>,
     /// Mean and median time per frame when the run recorded it.
     #[serde(rename = "ms_per_frame")]
     pub ms_per_frame: Option<f64>,
@@ -150,6 +162,9 @@ pub fn summarize(rows: &[FrameMetrics]) -> Summary {
         mte: mean(&trans),
         med_re: median(&rot),
         med_te: median(&trans),
+        availability: 100.0 * with_pose.len() as f64 / n.max(1) as f64,
+        false_pose_rate: (!with_pose.is_empty())
+            .then(|| 100.0 * with_pose.iter().filter(|e| !e.registered()).count() as f64 / with_pose.len() as f64),
         ms_per_frame: mean(&ms),
         median_ms: median(&ms),
     }
@@ -175,16 +190,24 @@ pub fn format_table(rows: &[(String, Summary)]) -> String {
     let fmt = |v: Option<f64>, p: usize| v.map_or_else(|| "-".to_string(), |x| format!("{x:.p$}"));
     let width = rows.iter().map(|(name, _)| name.len()).max().unwrap_or(6).max(6);
     let mut out = format!(
-        "{:<width$}  {:>6}  {:>6}  {:>6}  {:>8}  {:>7}  {:>7}  {:>8}  {:>9}\n",
-        "method", "frames", "IR %", "RR %", "MRE deg", "MTE m", "MedRE", "MedTE m", "ms/frame"
+        "{:<width$}  {:>6}  {:>6}  {:>6}  {:>7}  {:>5}  {:>8}  {:>7}  {:>7}  {:>8}  {:>9}\n",
+        "method", "frames", "IR %", "RR %", "avail %", "FP %", "MRE deg", "MTE m", "MedRE", "MedTE m", "ms/frame"
     );
     for (name, s) in rows {
+        // The raw matches' row has no poses: neither availability nor false poses.
+        let (avail, fp) = match s.false_pose_rate {
+            Some(fp) => (format!("{:.1}", s.availability), format!("{fp:.1}")),
+            None if s.mre.is_none() && s.ms_per_frame.is_none() => ("-".into(), "-".into()),
+            None => (format!("{:.1}", s.availability), "-".into()),
+        };
         out += &format!(
-            "{:<width$}  {:>6}  {:>6.2}  {:>6.2}  {:>8}  {:>7}  {:>7}  {:>8}  {:>9}\n",
+            "{:<width$}  {:>6}  {:>6.2}  {:>6.2}  {:>7}  {:>5}  {:>8}  {:>7}  {:>7}  {:>8}  {:>9}\n",
             name,
             s.frames,
             s.ir,
             s.rr,
+            avail,
+            fp,
             fmt(s.mre, 3),
             fmt(s.mte, 3),
             fmt(s.med_re, 3),
@@ -263,5 +286,12 @@ mod tests {
         assert_eq!(s.mre, Some(2.0));
         assert_eq!(s.med_re, Some(2.0));
         assert_eq!(s.median_ms, Some(3.0));
+        // Two of three frames got a pose; one of those two is wrong.
+        assert!((s.availability - 200.0 / 3.0).abs() < 1e-12);
+        assert_eq!(s.false_pose_rate, Some(50.0));
+        let none = summarize(&[FrameMetrics { stamp: 0, inlier_ratio: 0.0, errors: None, ms: None }]);
+        assert_eq!((none.availability, none.false_pose_rate), (0.0, None));
+        let table = format_table(&[("m".into(), s)]);
+        assert!(table.contains("avail %") && table.contains("FP %") && table.contains("66.7"), "{table}");
     }
 }

@@ -105,13 +105,13 @@ fn figure(html: &mut String, src: &str, link: &str, caption: &str) {
 fn table(raw: &Summary, scored: &ScoredRuns) -> String {
     let opt = |v: Option<f64>, p: usize| v.map_or_else(|| "–".to_string(), |x| format!("{x:.p$}"));
     let mut out = String::from(
-        "<table><tr><th>method</th><th>frames</th><th>IR %</th><th>RR %</th><th>MRE °</th><th>MTE m</th>\
-         <th>MedRE °</th><th>MedTE m</th><th>ms/frame</th></tr>\n",
+        "<table><tr><th>method</th><th>frames</th><th>IR %</th><th>RR %</th><th>available %</th>\
+         <th>false poses %</th><th>MRE °</th><th>MTE m</th><th>MedRE °</th><th>MedTE m</th><th>ms/frame</th></tr>\n",
     );
     let _ = writeln!(
         out,
         "<tr><td>raw matches (IR only)</td><td>{}</td><td>{:.2}</td><td>–</td><td>–</td><td>–</td><td>–</td>\
-         <td>–</td><td>–</td></tr>",
+         <td>–</td><td>–</td><td>–</td><td>–</td></tr>",
         raw.frames, raw.ir
     );
     for (index, run) in scored.runs.iter().enumerate() {
@@ -124,7 +124,8 @@ fn table(raw: &Summary, scored: &ScoredRuns) -> String {
         let _ = writeln!(
             out,
             "<tr><td><span class=\"swatch\" style=\"background:rgb({},{},{})\"></span>{}</td><td>{}</td>\
-             <td>{:.2}</td><td>{:.2}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+             <td>{:.2}</td><td>{:.2}</td><td>{:.1}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\
+             <td>{}</td></tr>",
             c.0,
             c.1,
             c.2,
@@ -132,6 +133,8 @@ fn table(raw: &Summary, scored: &ScoredRuns) -> String {
             s.frames,
             s.ir,
             s.rr,
+            s.availability,
+            opt(s.false_pose_rate, 1),
             opt(s.mre, 3),
             opt(s.mte, 3),
             opt(s.med_re, 3),
