@@ -172,6 +172,12 @@ pub fn localization_diagnostics(loc: &Localization) -> DiagnosticArray {
     if loc.last_resort {
         values.push(("last_resort", "true".to_string()));
     }
+    if loc.confirm_search {
+        values.push(("confirm_search", "true".to_string()));
+    }
+    if let Some(nfa) = loc.log10_nfa {
+        values.push(("log10_nfa", format!("{nfa:.2}")));
+    }
     let failure = loc.failure.as_ref().map(|f| f.to_string());
     diagnostics_msg(loc.stamp, loc.method.name(), &values, failure.as_deref())
 }

@@ -561,3 +561,104 @@ fn in_a_building_the_same_answer_that_fits_better_replaces_pnps() {
     assert!(without > 0.4, "PnP's pose on the kept set: {without}°");
     assert!(with < 0.3, "the sharper pose next to it: {with}°");
 }
+
+/// A rejector misled on a scene it does not transfer to: it scores wrong matches high and every
+/// true one last (the scores of each frame, known to the test, found by the frame's first pixel),
+/// keeping a set with no true match — as the learned rejector did on an office nobody tuned on.
+struct MisledRejector {
+    scores: std::collections::HashMap<(u64, u64), Vec<f32>>,
+}
+
+impl MisledRejector {
+    fn key(pixel: &nalgebra::Point2<f64>) -> (u64, u64) {
+        (pixel.x.to_bits(), pixel.y.to_bits())
+    }
+}
+
+impl angle_i2p::reject::Rejector for MisledRejector {
+    fn name(&self) -> &'static str {
+        "misled"
+    }
+
+    fn reject(
+        &mut self,
+        geometry: &angle_i2p::reject::FrameGeometry,
+    ) -> Result<angle_i2p::reject::Rejection, angle_i2p::reject::RejectError> {
+        let first = geometry.pixels.first().map(Self::key).unwrap_or_default();
+        let scores = self.scores.get(&first).cloned().unwrap_or_else(|| vec![0.5; geometry.pixels.len()]);
+        let mut kept: Vec<usize> = (0..scores.len()).filter(|&i| scores[i] >= 0.5).collect();
+        kept.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]));
+        Ok(angle_i2p::reject::Rejection { scores, kept })
+    }
+}
+
+/// Never worse than plain robust PnP: a rejector that throws the true matches away orders the
+/// search, but the geometry still finds the pose that every match supports. On extreme frames
+/// (6 % true matches, three quarters of the wrong ones moved patch-wise) with every true match
+/// scored last by the rejector (the matcher's own confidence as generated), the default
+/// registers what `ransac` registers and publishes no more wrong poses (within one frame of
+/// ten); without the check of unsure poses over every match (`cascade.confirm_nfa: 0`) it
+/// publishes the misled set's wrong poses (2 of 10 registered).
+#[test]
+fn a_rejector_that_throws_the_true_matches_away_is_never_worse_than_plain_ransac() {
+    let scene = generate(&SynthConfig { frames: 10, seed: 21, ..SynthConfig::preset("extreme").unwrap() });
+    let frames = &scene.frames;
+    let misled = || {
+        let scores = frames
+            .iter()
+            .zip(&scene.stats)
+            .filter_map(|(f, stats)| {
+                let first = MisledRejector::key(&f.correspondences.first()?.pixel);
+                let scores = stats
+                    .labels
+                    .iter()
+                    .enumerate()
+                    .map(|(i, label)| match label {
+                        angle_i2p::synth::CorrLabel::Inlier => 0.01,
+                        _ => 0.5 + 0.5 * ((i * 7919) % 1000) as f32 / 1000.0,
+                    })
+                    .collect();
+                Some((first, scores))
+            })
+            .collect();
+        Box::new(MisledRejector { scores })
+    };
+    let run = |params: LocalizerParams| {
+        let mut localizer = match params.method {
+            Method::Ransac => Localizer::new(params).expect("a localizer"),
+            _ => Localizer::with_rejector(params, misled()),
+        };
+        localizer.set_map(&scene.map);
+        let rows: Vec<FrameMetrics> = frames
+            .iter()
+            .map(|f| {
+                let gt = f.ground_truth.as_ref().expect("ground truth");
+                let (pose, depth) = (gt.pose.as_ref().expect("gt pose"), gt.depth.as_ref().expect("gt depth"));
+                let loc = localizer.process(f);
+                FrameMetrics {
+                    stamp: f.stamp,
+                    inlier_ratio: 0.0,
+                    errors: loc.pose.map(|p| pose_errors(&p, pose, &f.intrinsics, depth)),
+                    ms: None,
+                }
+            })
+            .collect();
+        summarize(&rows)
+    };
+    let default = LocalizerParams { method: Method::AngleI2p, ..LocalizerParams::default() };
+    let mut unchecked = default.clone();
+    unchecked.cascade.confirm_nfa = 0.0;
+    let ransac = run(LocalizerParams { method: Method::Ransac, ..LocalizerParams::default() });
+    let (checked, unchecked) = (run(default), run(unchecked));
+    eprintln!("ransac {ransac:?}\nchecked {checked:?}\nunchecked {unchecked:?}");
+    // One frame in ten may differ: plain LO-RANSAC's 10 000 draws find the true pose of an
+    // extreme frame with a probability, not surely (measured: ransac 10/10, checked 9/10).
+    assert!(checked.rr + 10.0 >= ransac.rr, "RR {} vs ransac {}", checked.rr, ransac.rr);
+    assert!(
+        checked.false_pose_rate.unwrap_or(0.0) <= ransac.false_pose_rate.unwrap_or(0.0) + 10.0,
+        "false poses {:?} vs ransac {:?}",
+        checked.false_pose_rate,
+        ransac.false_pose_rate
+    );
+    assert!(unchecked.rr < checked.rr, "the misled set alone registers as much: {} %", unchecked.rr);
+}

@@ -104,9 +104,7 @@ pub fn support(
     cell_px: f64,
 ) -> (Support, Vec<bool>) {
     let to_cam = pose.inverse();
-    let cell_px = cell_px.max(1.0);
-    let cols = (k.width as f64 / cell_px).ceil().max(1.0) as usize;
-    let rows = (k.height as f64 / cell_px).ceil().max(1.0) as usize;
+    let grid = CellGrid::new(k, cell_px);
     let cap = threshold_px * threshold_px;
     let mut cells: Vec<usize> = Vec::new();
     let mut flags = Vec::with_capacity(correspondences.len());
@@ -115,9 +113,7 @@ pub fn support(
         let error = k.reprojection_error(&to_cam.transform_point(&c.point), &c.pixel);
         let inlier = error < threshold_px;
         if inlier {
-            let col = ((c.pixel.x.max(0.0) / cell_px) as usize).min(cols - 1);
-            let row = ((c.pixel.y.max(0.0) / cell_px) as usize).min(rows - 1);
-            cells.push(row * cols + col);
+            cells.push(grid.cell(&c.pixel));
         }
         msac += (error * error).min(cap);
         flags.push(inlier);
@@ -126,6 +122,39 @@ pub fn support(
     cells.sort_unstable();
     cells.dedup();
     (Support { inliers, cells: cells.len(), msac }, flags)
+}
+
+/// Square image cells `cell_px` wide (at least one pixel) over the image of `k`; pixels outside
+/// it count in its border cells.
+#[derive(Clone, Copy, Debug)]
+pub struct CellGrid {
+    cell_px: f64,
+    cols: usize,
+    rows: usize,
+}
+
+impl CellGrid {
+    pub fn new(k: &Intrinsics, cell_px: f64) -> Self {
+        let cell_px = cell_px.max(1.0);
+        let cols = (k.width as f64 / cell_px).ceil().max(1.0) as usize;
+        let rows = (k.height as f64 / cell_px).ceil().max(1.0) as usize;
+        Self { cell_px, cols, rows }
+    }
+
+    /// The cell holding `pixel`, numbered row by row.
+    pub fn cell(&self, pixel: &nalgebra::Point2<f64>) -> usize {
+        let col = ((pixel.x.max(0.0) / self.cell_px) as usize).min(self.cols - 1);
+        let row = ((pixel.y.max(0.0) / self.cell_px) as usize).min(self.rows - 1);
+        row * self.cols + col
+    }
+
+    /// Distinct cells holding one of `pixels`.
+    pub fn occupied<'a>(&self, pixels: impl Iterator<Item = &'a nalgebra::Point2<f64>>) -> usize {
+        let mut cells: Vec<usize> = pixels.map(|p| self.cell(p)).collect();
+        cells.sort_unstable();
+        cells.dedup();
+        cells.len()
+    }
 }
 
 /// How many correspondences both flag sets hold as inliers.

@@ -37,6 +37,14 @@ pub struct CascadeParams {
     /// budget), its pose chosen on geometry alone, so the method never returns less than plain
     /// LO-RANSAC would. 0: off.
     pub last_resort_iterations: usize,
+    /// How sure a pose must be: a pose found in the rejector's order whose support among every
+    /// match could come from wrong matches more often than this (its number of false alarms,
+    /// [`super::significance`]) is checked by the same plain LO-RANSAC over every match, whose
+    /// pose replaces it when that one is this sure: the rejector's scores order the search,
+    /// they never keep the geometry from a pose that every match supports. A-contrario's own
+    /// level is 1; 10⁻³ asks a thousand times more of a pose before it overrules the network
+    /// (the shared extreme frames' wrong plain poses reach 10^−1.6). 0: never checked.
+    pub confirm_nfa: f64,
 }
 
 impl Default for CascadeParams {
@@ -50,6 +58,7 @@ impl Default for CascadeParams {
             min_cell_share: 0.5,
             grid_columns: 16,
             last_resort_iterations: 10_000,
+            confirm_nfa: 0.001,
         }
     }
 }

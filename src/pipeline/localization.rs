@@ -107,6 +107,13 @@ pub struct Localization {
     /// Whether the pose came from the cascade's last resort (plain LO-RANSAC on every
     /// correspondence, after the rejection-guided PnP found no consensus).
     pub last_resort: bool,
+    /// How sure the pose is: log₁₀ of its number of false alarms among every correspondence of
+    /// the frame ([`super::significance`]; ≤ 0: fewer than one pose so well supported is expected
+    /// from wrong matches alone). `None` without a pose.
+    pub log10_nfa: Option<f64>,
+    /// Whether the pose the rejector's order found was not sure enough
+    /// ([`super::CascadeParams::confirm_nfa`]) and a plain search over every match checked it.
+    pub confirm_search: bool,
     pub timings: StageTimings,
     pub failure: Option<Failure>,
 }
@@ -129,6 +136,8 @@ impl Localization {
             fast_path: false,
             fast_path_check: None,
             last_resort: false,
+            log10_nfa: None,
+            confirm_search: false,
             timings: StageTimings::default(),
             failure: None,
         }

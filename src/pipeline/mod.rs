@@ -13,6 +13,7 @@ use crate::reject::network::{NetworkError, NetworkRejector};
 use crate::reject::{FrameGeometry, Rejector, SpectralRejector};
 use crate::verify::{PriorVerifier, RenderMap};
 use scratch::FrameScratch;
+use significance::Significance;
 
 mod arbiter;
 mod cascade;
@@ -20,6 +21,7 @@ mod localization;
 mod params;
 mod refine;
 mod scratch;
+mod significance;
 
 pub use cascade::{CascadeParams, FastPathCheck};
 pub use localization::{Failure, Localization, Method, StageTimings};
@@ -93,6 +95,19 @@ impl Localizer {
             pose_gate: None,
             overlap_fast_path: false,
         })
+    }
+
+    /// A localizer whose rejection is `rejector` (a user's own scorer, or a test's), everything
+    /// else as `params` says.
+    pub fn with_rejector(params: LocalizerParams, rejector: Box<dyn Rejector>) -> Self {
+        Self {
+            params,
+            rejector: Some(rejector),
+            render_map: RenderMap::default(),
+            scratch: FrameScratch::default(),
+            pose_gate: None,
+            overlap_fast_path: false,
+        }
     }
 
     /// The map frames are localized against, indexed here whole before the next frame: a
@@ -269,7 +284,8 @@ impl Localizer {
                     self.refine_on_all(frame, &mut solution);
                     let fast_path_pose = out.fast_path_check.and_then(|c| c.pose);
                     let poses: Vec<_> = fast_path_pose.into_iter().chain(ranked).collect();
-                    self.arbitrate_on_all(frame, &poses, &mut solution);
+                    self.arbitrate_on_all(frame, &poses, self.params.final_refine.switch_margin, &mut solution);
+                    self.confirm_on_all(frame, &mut solution, out);
                 }
                 out.kept = match rejection {
                     Some(r) => with_scores(r),
@@ -280,7 +296,7 @@ impl Localizer {
                         .map(|(&i, _)| with_score(frame.correspondences[i], 1.0))
                         .collect(),
                 };
-                self.accept(&solution, verifier.as_ref(), out);
+                self.accept(frame, &solution, verifier.as_ref(), out);
             }
             Err(e) => {
                 if let Some(r) = rejection {
@@ -305,6 +321,42 @@ impl Localizer {
         true
     }
 
+    /// A pose the rejector's order found whose support among every match is not sure (its
+    /// number of false alarms above [`CascadeParams::confirm_nfa`]): plain LO-RANSAC over every
+    /// match searches on, and its pose replaces the found one when it is sure itself, surer, and
+    /// covers more cells once refined ([`arbiter`]). An unsure pose is replaced by a sure one,
+    /// never by another unsure one: on the shared extreme frames, wrong matches moved patch-wise
+    /// give plain LO-RANSAC wrong poses with more inliers than the true pose (up to 22 against
+    /// 9), but none of them sure (log₁₀ NFA ≥ −1.6 in cells); a rejector that lost the true
+    /// matches leaves a pose that a sure one over every match replaces (log₁₀ NFA −5 to −10).
+    fn confirm_on_all(&self, frame: &Frame, solution: &mut PnpSolution, out: &mut Localization) {
+        let cascade = &self.params.cascade;
+        let pnp = self.pnp_params(frame);
+        let found = Significance::of(
+            &frame.intrinsics,
+            &frame.correspondences,
+            &solution.pose,
+            pnp.threshold_px,
+            pnp.coverage_cell_px,
+        );
+        if !(cascade.confirm_nfa > 0.0) || found.below(cascade.confirm_nfa) {
+            return;
+        }
+        let Some(plain) = cascade.last_resort(frame, &pnp, self.pose_gate.as_ref()) else { return };
+        out.confirm_search = true;
+        out.pnp_iterations += plain.iterations;
+        let sure = Significance::of(
+            &frame.intrinsics,
+            &frame.correspondences,
+            &plain.pose,
+            pnp.threshold_px,
+            pnp.coverage_cell_px,
+        );
+        if sure.below(cascade.confirm_nfa) && sure.log10_nfa < found.log10_nfa {
+            self.arbitrate_on_all(frame, &[plain.pose], 1.0, solution);
+        }
+    }
+
     /// A pose plain LO-RANSAC found on every correspondence (the fast path, the last resort):
     /// refined on all that agree, its inliers the kept set.
     fn accept_plain(&self, frame: &Frame, mut solution: PnpSolution, out: &mut Localization) {
@@ -312,7 +364,7 @@ impl Localizer {
             self.refine_on_all(frame, &mut solution);
         }
         out.kept = inliers_of(frame, &solution);
-        self.accept(&solution, self.verifier(frame).as_ref(), out);
+        self.accept(frame, &solution, self.verifier(frame).as_ref(), out);
     }
 
     /// PnP's parameters for the frame's camera, with the localizer's seed.
@@ -320,13 +372,23 @@ impl Localizer {
         PnpParams { seed: self.params.seed, ..self.params.pnp.for_camera(frame.intrinsics.fx) }
     }
 
-    /// Fills `out` with the solved pose, and the prior's quality at it.
-    fn accept(&self, solution: &PnpSolution, verifier: Option<&PriorVerifier>, out: &mut Localization) {
+    /// Fills `out` with the solved pose, the prior's quality at it and how sure it is among
+    /// every match of `frame`.
+    fn accept(&self, frame: &Frame, solution: &PnpSolution, verifier: Option<&PriorVerifier>, out: &mut Localization) {
         out.pose = Some(solution.pose);
         out.covariance = Some(solution.covariance);
         out.num_inliers = solution.num_inliers;
         out.pnp_iterations += solution.iterations;
         out.prior_quality = verifier.map(|v| v.agreement(&solution.pose).in_view_share(self.params.verify.min_view));
+        let pnp = self.pnp_params(frame);
+        let significance = Significance::of(
+            &frame.intrinsics,
+            &frame.correspondences,
+            &solution.pose,
+            pnp.threshold_px,
+            pnp.coverage_cell_px,
+        );
+        out.log10_nfa = Some(significance.log10_nfa);
     }
 
     /// The verifier of PnP's hypotheses against the frame's dense prior, when there is a prior,
@@ -373,7 +435,7 @@ impl Localizer {
     /// path's unsettled pose, the ranked search's), each refined on every correspondence as the
     /// chosen pose was ([`arbiter`]): the best supported of them replaces the chosen pose when
     /// it covers more than `final_refine.switch_margin` times its cells.
-    fn arbitrate_on_all(&self, frame: &Frame, poses: &[Isometry3<f64>], solution: &mut PnpSolution) {
+    fn arbitrate_on_all(&self, frame: &Frame, poses: &[Isometry3<f64>], margin: f64, solution: &mut PnpSolution) {
         let refine = &self.params.final_refine;
         let pnp = self.pnp_params(frame);
         let support = |pose: &Isometry3<f64>| {
@@ -388,7 +450,7 @@ impl Localizer {
             let shared = arbiter::shared_inliers(&inliers, &incumbent_inliers);
             (arbiter::Challenge { support, shared }, candidate)
         });
-        let Some(challenger) = arbiter::challenger(incumbent, candidates, refine.switch_margin) else { return };
+        let Some(challenger) = arbiter::challenger(incumbent, candidates, margin) else { return };
         *solution = challenger;
         // PnP's inliers are the new pose's among the correspondences PnP saw.
         let to_cam = solution.pose.inverse();
