@@ -241,7 +241,10 @@ fn frame_line(loc: &Localization) -> String {
         (true, _) => ", settled by the fast path".to_string(),
         (false, _) if loc.last_resort => ", pose from the last resort (plain LO-RANSAC)".to_string(),
         (false, Some(c)) => {
-            format!(", fast path unsettled (inliers {:.2}, cells {:.2})", c.inlier_ratio, c.cell_share)
+            format!(
+                ", fast path unsettled (inliers {:.2}, cells {:.2}, log10 NFA {:.1})",
+                c.inlier_ratio, c.cell_share, c.log10_nfa
+            )
         }
         _ => String::new(),
     };

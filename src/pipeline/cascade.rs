@@ -4,6 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::arbiter::CellGrid;
+use super::significance::Significance;
 use crate::frame::Frame;
 use crate::pnp::{solve_pnp_ransac, Guidance, PnpParams, PnpSolution, PoseGate, Problem};
 
@@ -69,6 +71,8 @@ impl Default for CascadeParams {
 pub struct FastPathCheck {
     pub inlier_ratio: f64,
     pub cell_share: f64,
+    /// How sure its best hypothesis is among every match ([`super::significance`]).
+    pub log10_nfa: f64,
     /// Camera-to-map pose of its best hypothesis, when it had one.
     pub pose: Option<nalgebra::Isometry3<f64>>,
 }
@@ -119,15 +123,24 @@ impl CascadeParams {
         iterations: usize,
         gate: Option<&PoseGate>,
     ) -> Result<Result<PnpSolution, FastPathCheck>, FastPathCheck> {
-        let solution = matches.lo_ransac(frame, pnp, iterations, gate).map_err(|_| FastPathCheck::default())?;
-        let cell_px = frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64;
+        let solution = matches
+            .lo_ransac(frame, pnp, iterations, gate)
+            .map_err(|_| FastPathCheck { log10_nfa: f64::INFINITY, ..FastPathCheck::default() })?;
+        let grid = CellGrid::new(&frame.intrinsics, frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64);
         let pixels = &matches.pixels;
-        let all = cells_covered(pixels.iter(), cell_px);
-        let supported =
-            cells_covered(pixels.iter().zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p), cell_px);
+        let all = grid.occupied(pixels.iter());
+        let supported = grid.occupied(pixels.iter().zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p));
+        let sure = Significance::of(
+            &frame.intrinsics,
+            &frame.correspondences,
+            &solution.pose,
+            pnp.threshold_px,
+            pnp.coverage_cell_px,
+        );
         let check = FastPathCheck {
             inlier_ratio: solution.num_inliers as f64 / pixels.len().max(1) as f64,
             cell_share: supported as f64 / all.max(1) as f64,
+            log10_nfa: sure.log10_nfa,
             pose: Some(solution.pose),
         };
         let settled = check.inlier_ratio >= self.min_inlier_ratio && check.cell_share >= self.min_cell_share;
@@ -185,13 +198,4 @@ impl Matches {
         let problem = Problem { intrinsics: &frame.intrinsics, pixels: &self.pixels, points: &self.points };
         solve_pnp_ransac(&problem, &guidance, &params)
     }
-}
-
-/// Distinct image cells of side `cell_px` holding at least one of `pixels`.
-fn cells_covered<'a>(pixels: impl Iterator<Item = &'a nalgebra::Point2<f64>>, cell_px: f64) -> usize {
-    let mut cells: Vec<(i64, i64)> =
-        pixels.map(|p| ((p.x / cell_px).floor() as i64, (p.y / cell_px).floor() as i64)).collect();
-    cells.sort_unstable();
-    cells.dedup();
-    cells.len()
 }
