@@ -182,15 +182,19 @@ def frame_row(frame: InputFrame, pose: np.ndarray | None, ms: float | None, fail
 
 
 def summarize(rows: list[dict]) -> dict:
-    """RR %, MRE, MTE (means over frames with a pose), medians, and median / mean ms, as eval's JSON names them."""
+    """RR %, availability and false-pose rate %, MRE, MTE (means over frames with a pose), medians, and median /
+    mean ms, as eval's JSON names them."""
     with_pose = [r for r in rows if r["has_pose"]]
     times = [r["ms"] for r in rows if r["ms"] is not None]
 
     def stat(fn, values):
         return float(fn(values)) if values else None
 
+    wrong = sum(not r["registered"] for r in with_pose)
     return {"frames": len(rows),
             "RR": 100.0 * sum(r["registered"] for r in rows) / max(1, len(rows)),
+            "availability": 100.0 * len(with_pose) / max(1, len(rows)),
+            "false_pose_rate": 100.0 * wrong / len(with_pose) if with_pose else None,
             "MRE": stat(np.mean, [r["rotation_deg"] for r in with_pose]),
             "MTE": stat(np.mean, [r["translation_m"] for r in with_pose]),
             "MedRE": stat(np.median, [r["rotation_deg"] for r in with_pose]),

@@ -332,26 +332,14 @@ impl Localizer {
     fn confirm_on_all(&self, frame: &Frame, solution: &mut PnpSolution, out: &mut Localization) {
         let cascade = &self.params.cascade;
         let pnp = self.pnp_params(frame);
-        let found = Significance::of(
-            &frame.intrinsics,
-            &frame.correspondences,
-            &solution.pose,
-            pnp.threshold_px,
-            pnp.coverage_cell_px,
-        );
+        let found = self.significance(frame, &solution.pose);
         if !(cascade.confirm_nfa > 0.0) || found.below(cascade.confirm_nfa) {
             return;
         }
         let Some(plain) = cascade.last_resort(frame, &pnp, self.pose_gate.as_ref()) else { return };
         out.confirm_search = true;
         out.pnp_iterations += plain.iterations;
-        let sure = Significance::of(
-            &frame.intrinsics,
-            &frame.correspondences,
-            &plain.pose,
-            pnp.threshold_px,
-            pnp.coverage_cell_px,
-        );
+        let sure = self.significance(frame, &plain.pose);
         if sure.below(cascade.confirm_nfa) && sure.log10_nfa < found.log10_nfa {
             self.arbitrate_on_all(frame, &[plain.pose], 1.0, solution);
         }
@@ -380,15 +368,14 @@ impl Localizer {
         out.num_inliers = solution.num_inliers;
         out.pnp_iterations += solution.iterations;
         out.prior_quality = verifier.map(|v| v.agreement(&solution.pose).in_view_share(self.params.verify.min_view));
+        out.log10_nfa = Some(self.significance(frame, &solution.pose).log10_nfa);
+    }
+
+    /// How sure the camera-to-map `pose` is among every correspondence of `frame`, at PnP's
+    /// inlier threshold and coverage cells for its camera.
+    fn significance(&self, frame: &Frame, pose: &Isometry3<f64>) -> Significance {
         let pnp = self.pnp_params(frame);
-        let significance = Significance::of(
-            &frame.intrinsics,
-            &frame.correspondences,
-            &solution.pose,
-            pnp.threshold_px,
-            pnp.coverage_cell_px,
-        );
-        out.log10_nfa = Some(significance.log10_nfa);
+        Significance::of(&frame.intrinsics, &frame.correspondences, pose, pnp.threshold_px, pnp.coverage_cell_px)
     }
 
     /// The verifier of PnP's hypotheses against the frame's dense prior, when there is a prior,

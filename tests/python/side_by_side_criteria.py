@@ -33,6 +33,10 @@ def main():
     realistic = r.Tier("extreme", True)
     assert r.criteria_failures(realistic, summary(40.0, ms=2.0), summary(25.0)) == []
     assert r.criteria_failures(realistic, summary(39.0, ms=2.0), summary(25.0)) == ["RR 39.0 < PoseLib 25.0 + 15"]
+    # A published pose is a promise: more than 5 % wrong ones fails any tier (issue 34).
+    extreme_fp = {**summary(90.0, ms=2.0), "false_pose_rate": 10.0}
+    assert r.criteria_failures(r.Tier("extreme", False), extreme_fp, summary(25.0)) == ["false poses 10.0 % > 5 %"]
+    assert r.criteria_failures(hard, {**summary(100.0, ms=9.0), "false_pose_rate": 0.0}, poselib) == []
     # No pose at all is the worst error; PoseLib without a time cannot be compared.
     assert r.criteria_failures(hard, summary(100.0, mre=None, ms=2.0), poselib) == ["MRE – > PoseLib 3.000"]
     assert r.criteria_failures(hard, summary(100.0, ms=2.0), summary(0.0, mre=None, ms=None)) == ["no time to compare"]
