@@ -446,6 +446,8 @@ fn last_choice_error(
     let gt = frame.ground_truth.as_ref().and_then(|g| g.pose.as_ref()).expect("gt pose");
     let mut params = LocalizerParams::default();
     params.network.model_path = "models/ablations/rooms_only.onnx".into();
+    // The pose the search reaches, published or not (a wrong one is held back as unsure).
+    params.cascade.publish_nfa = 0.0;
     change(&mut params.final_refine);
     let mut localizer = Localizer::new(params).expect("a localizer");
     localizer.set_map(&scene.map);

@@ -47,6 +47,11 @@ pub struct CascadeParams {
     /// level is 1; 10⁻³ asks a thousand times more of a pose before it overrules the network
     /// (the shared extreme frames' wrong plain poses reach 10^−1.6). 0: never checked.
     pub confirm_nfa: f64,
+    /// A pose is published when its support among every match is meaningful (number of false
+    /// alarms at most this) or the dense prior confirms it (`verify.min_trust`); else the frame
+    /// reports it unsure and publishes none: a likely-wrong pose is worse than none. 1 is
+    /// a-contrario's own level; 0: publish every pose.
+    pub publish_nfa: f64,
 }
 
 impl Default for CascadeParams {
@@ -61,6 +66,7 @@ impl Default for CascadeParams {
             grid_columns: 16,
             last_resort_iterations: 10_000,
             confirm_nfa: 0.001,
+            publish_nfa: 1.0,
         }
     }
 }

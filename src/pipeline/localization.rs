@@ -61,6 +61,11 @@ pub enum Failure {
     Rejection(RejectError),
     #[error("PnP failed: {0}")]
     Pnp(PnpError),
+    /// A pose was found but is not published: neither its support among every match is
+    /// meaningful (log₁₀ NFA above the publishing level) nor does the dense prior confirm it.
+    #[error("pose not sure enough to publish: log10 NFA {log10_nfa:.1} among every match, prior agreement {}",
+        prior_quality.map_or_else(|| "unknown".to_string(), |q| format!("{q:.2}")))]
+    Unsure { log10_nfa: f64, prior_quality: Option<f64> },
 }
 
 impl Failure {
@@ -73,6 +78,7 @@ impl Failure {
             Failure::NonFinite { .. } => "non_finite",
             Failure::Rejection(_) => "rejection",
             Failure::Pnp(_) => "pnp",
+            Failure::Unsure { .. } => "unsure",
         }
     }
 }
