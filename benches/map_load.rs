@@ -9,7 +9,7 @@
 use std::hint::black_box;
 use std::time::Duration;
 
-use angle_i2p::map_index::{IndexSettings, MapIndex, View};
+use angle_i2p::map_index::{MapIndex, View};
 use angle_i2p::synth::{SynthConfig, SynthRun};
 use angle_i2p::verify::VerifyParams;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
@@ -30,7 +30,7 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("map_load");
     group.sample_size(10).measurement_time(Duration::from_secs(10)).warm_up_time(Duration::from_millis(200));
     let verify = VerifyParams::default();
-    let settings = IndexSettings::from_verify(&verify);
+    let settings = verify.index_settings();
     for n in sizes() {
         let run = building(n);
         let points = run.map().points.clone();

@@ -37,7 +37,6 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
 use crate::geometry::{Intrinsics, PointIndex};
-use crate::verify::{RenderMap, VerifyParams};
 
 pub use cell_normals::{CellAnswer, CellNormals, CELL_SPACINGS};
 pub use normals::{point_normal, LazyNormals, NearestPoints};
@@ -74,19 +73,6 @@ pub struct IndexSettings {
     pub cell_normals: bool,
 }
 
-impl IndexSettings {
-    /// The culling voxels and the building threshold the verification parameters ask for: a
-    /// map of more than `verify.cull_above_budgets` render budgets (`verify.max_map_points`).
-    pub fn from_verify(params: &VerifyParams) -> Self {
-        Self {
-            voxel_m: params.render_voxel_m as f32,
-            building_above_points: params.max_map_points.saturating_mul(params.cull_above_budgets),
-            one_tree_max_points: ONE_TREE_MAX_POINTS,
-            cell_normals: true,
-        }
-    }
-}
-
 /// How a map is rendered and how far its normals are looked for, from its size against the
 /// render budget (how it is searched follows [`ONE_TREE_MAX_POINTS`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -101,8 +87,16 @@ pub enum MapScale {
 }
 
 impl Default for IndexSettings {
+    /// What the default verification asks for (`VerifyParams::index_settings` in `verify`, which
+    /// a test there checks against this: 2 m culling voxels, a building above 25 render budgets
+    /// of 10 000 points).
     fn default() -> Self {
-        Self::from_verify(&VerifyParams::default())
+        Self {
+            voxel_m: 2.0,
+            building_above_points: 250_000,
+            one_tree_max_points: ONE_TREE_MAX_POINTS,
+            cell_normals: true,
+        }
     }
 }
 
@@ -320,20 +314,6 @@ impl std::fmt::Debug for MapIndex {
             .field("voxels", &self.grid.voxel_count())
             .field("extent_m", &self.extent_m)
             .finish()
-    }
-}
-
-/// The verifier's render map for `index`: on a room-scale map, an even subsample of the whole
-/// map (every point of it may be in view); on a building-scale one, the culled view of the index
-/// (the points in view at each candidate pose, at the budget's density).
-pub fn render_map(index: &Arc<MapIndex>, params: &VerifyParams) -> RenderMap {
-    match index.scale() {
-        MapScale::Room => RenderMap::new(index.points(), params.max_map_points),
-        MapScale::Building => RenderMap::culled(CulledRender {
-            index: Arc::clone(index),
-            budget: params.max_map_points,
-            range_m: params.cull_range_m,
-        }),
     }
 }
 

@@ -154,16 +154,6 @@ fn cellular_building(points: Vec<Point3<f32>>) -> MapIndex {
 }
 
 #[test]
-fn the_scale_follows_the_point_count_against_the_render_budget() {
-    let params = VerifyParams { max_map_points: 1_000, cull_above_budgets: 4, ..VerifyParams::default() };
-    let settings = IndexSettings::from_verify(&params);
-    assert_eq!(MapIndex::build(cloud(4_000), &settings).scale(), MapScale::Room);
-    assert_eq!(MapIndex::build(cloud(4_001), &settings).scale(), MapScale::Building);
-    // Every map of the shared val bags (66 k–203 k points) stays a room at the defaults.
-    assert!(IndexSettings::default().building_above_points >= 203_000);
-}
-
-#[test]
 fn the_per_voxel_search_finds_what_one_tree_over_the_map_finds() {
     let points = cloud(20_000);
     let whole = PointIndex::new(&points);
@@ -224,22 +214,6 @@ fn the_bounded_normal_search_scales_with_the_maps_point_spacing() {
     let normals = index.nearest_normals(&[near, far_above]);
     assert!(normals[0].is_some(), "a point 1.5 m off a sparse floor has its normal");
     assert!(normals[1].is_none(), "a point far above everything has none");
-}
-
-#[test]
-fn a_room_scale_map_renders_as_before() {
-    // Whatever its width (here 50 m): a map the render budget covers renders all of it.
-    let points = cloud(20_000);
-    let params = VerifyParams::default();
-    let index = Arc::new(MapIndex::new(points.clone()));
-    assert_eq!(index.scale(), MapScale::Room);
-    let flat = RenderMap::new(&points, params.max_map_points);
-    let chosen = render_map(&index, &params);
-    assert_eq!(format!("{chosen:?}"), format!("{flat:?}"), "the room-scale render map is today's");
-    let params = VerifyParams { max_map_points: 1_000, cull_above_budgets: 10, ..params };
-    let big = Arc::new(MapIndex::build(points, &IndexSettings::from_verify(&params)));
-    assert_eq!(big.scale(), MapScale::Building);
-    assert_eq!(render_map(&big, &params).len(), 20_000, "a building is culled from the whole index");
 }
 
 #[test]

@@ -25,7 +25,6 @@ use super::topics::Topics;
 use crate::frame::{MonotonicNs, PartKind};
 use crate::limits::InputLimits;
 use crate::map_index::swap::MapSwap;
-use crate::map_index::IndexSettings;
 use crate::msgs;
 use crate::params::{AppParams, Names, NodeParams};
 use crate::pipeline::{Localizer, LocalizerParams};
@@ -163,7 +162,7 @@ impl Cameras {
             let ingest = Ingest::new(cx.rules.clone(), queue.clone(), c.stats.clone());
             runs.push(CameraRun { ingest, queue, worker });
         }
-        let map = MapInbox::new(cx.swap.clone(), IndexSettings::from_verify(&cx.params.verify));
+        let map = MapInbox::new(cx.swap.clone(), cx.params.verify.index_settings());
         Ok(Self { runs, map })
     }
 

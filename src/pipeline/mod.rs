@@ -114,7 +114,7 @@ impl Localizer {
     /// building-scale map's per-voxel trees and planar cells too (which a node builds beside or
     /// in its first frames, [`crate::map_index::swap`]). See [`Localizer::set_map_index`].
     pub fn set_map(&mut self, map: &crate::frame::MapCloud) {
-        let settings = crate::map_index::IndexSettings::from_verify(&self.params.verify);
+        let settings = self.params.verify.index_settings();
         let index = crate::map_index::MapIndex::build(map.points.clone(), &settings);
         index.prepare_searches();
         self.set_map_index(std::sync::Arc::new(index));
@@ -127,7 +127,7 @@ impl Localizer {
             r.set_map_index(&index);
         }
         self.render_map = if self.params.verify.enabled {
-            crate::map_index::render_map(&index, &self.params.verify)
+            RenderMap::of_index(&index, &self.params.verify)
         } else {
             RenderMap::default()
         };

@@ -8,7 +8,9 @@ use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{fit_increasing_affine, AffineFitParams, DepthImage, DepthKind, Intrinsics, PriorSpace};
-use crate::map_index::{CulledRender, PointSlice};
+use std::sync::Arc;
+
+use crate::map_index::{CulledRender, IndexSettings, MapIndex, MapScale, PointSlice};
 use crate::pnp::{Agreement, PoseVerifier, Verification};
 use crate::rng::splitmix64_hash;
 
@@ -95,6 +97,16 @@ impl Default for VerifyParams {
 }
 
 impl VerifyParams {
+    /// The map index's culling voxels and building threshold these parameters ask for: a map of
+    /// more than `cull_above_budgets` render budgets (`max_map_points`) is a building.
+    pub fn index_settings(&self) -> IndexSettings {
+        IndexSettings {
+            voxel_m: self.render_voxel_m as f32,
+            building_above_points: self.max_map_points.saturating_mul(self.cull_above_budgets),
+            ..IndexSettings::default()
+        }
+    }
+
     /// How PnP uses `verifier` under these parameters.
     pub fn verification<'a>(&self, verifier: &'a dyn PoseVerifier) -> Verification<'a> {
         Verification {
@@ -129,6 +141,20 @@ pub struct RenderMap {
 }
 
 impl RenderMap {
+    /// The render map for `index` under `params`: on a room-scale map, an even subsample of the
+    /// whole map (every point of it may be in view); on a building-scale one, the culled view of
+    /// the index (the points in view at each candidate pose, at the budget's density).
+    pub fn of_index(index: &Arc<MapIndex>, params: &VerifyParams) -> RenderMap {
+        match index.scale() {
+            MapScale::Room => RenderMap::new(index.points(), params.max_map_points),
+            MapScale::Building => RenderMap::culled(CulledRender {
+                index: Arc::clone(index),
+                budget: params.max_map_points,
+                range_m: params.cull_range_m,
+            }),
+        }
+    }
+
     /// About `max_points` of the finite `points`, each kept with the same probability by a
     /// hash of its index (deterministic, and blind to the order the map was stored in).
     pub fn new(points: &[Point3<f32>], max_points: usize) -> Self {

@@ -211,3 +211,41 @@ fn render_map_subsamples_evenly() {
     assert!((mean - 500.0).abs() < 60.0, "{mean}");
     assert_eq!(RenderMap::new(&pts, 5000).len(), 1000);
 }
+
+/// Any cloud of `n` points over a 50 × 30 × 3 m box (the scale follows the count alone).
+fn spread_cloud(n: usize) -> Vec<Point3<f32>> {
+    (0..n)
+        .map(|i| {
+            let f = i as f32;
+            Point3::new((f * 0.618_034).fract() * 50.0, (f * 0.414_214).fract() * 30.0, (i % 7) as f32 * 0.4)
+        })
+        .collect()
+}
+
+#[test]
+fn the_scale_follows_the_point_count_against_the_render_budget() {
+    let params = VerifyParams { max_map_points: 1_000, cull_above_budgets: 4, ..VerifyParams::default() };
+    let settings = params.index_settings();
+    assert_eq!(MapIndex::build(spread_cloud(4_000), &settings).scale(), MapScale::Room);
+    assert_eq!(MapIndex::build(spread_cloud(4_001), &settings).scale(), MapScale::Building);
+    // The index's own default is what the default verification asks for.
+    assert_eq!(VerifyParams::default().index_settings(), IndexSettings::default());
+    // Every map of the shared val bags (66 k–203 k points) stays a room at the defaults.
+    assert!(IndexSettings::default().building_above_points >= 203_000);
+}
+
+#[test]
+fn a_room_scale_map_renders_as_before() {
+    // Whatever its width (here 50 m): a map the render budget covers renders all of it.
+    let points = spread_cloud(20_000);
+    let params = VerifyParams::default();
+    let index = Arc::new(MapIndex::new(points.clone()));
+    assert_eq!(index.scale(), MapScale::Room);
+    let flat = RenderMap::new(&points, params.max_map_points);
+    let chosen = RenderMap::of_index(&index, &params);
+    assert_eq!(format!("{chosen:?}"), format!("{flat:?}"), "the room-scale render map is today's");
+    let params = VerifyParams { max_map_points: 1_000, cull_above_budgets: 10, ..params };
+    let big = Arc::new(MapIndex::build(points, &params.index_settings()));
+    assert_eq!(big.scale(), MapScale::Building);
+    assert_eq!(RenderMap::of_index(&big, &params).len(), 20_000, "a building is culled from the whole index");
+}
