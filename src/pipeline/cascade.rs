@@ -136,21 +136,16 @@ impl CascadeParams {
         let pixels = &matches.pixels;
         let all = grid.occupied(pixels.iter());
         let supported = grid.occupied(pixels.iter().zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p));
-        let sure = Significance::of(
-            &frame.intrinsics,
-            &frame.correspondences,
-            &solution.pose,
-            pnp.threshold_px,
-            pnp.coverage_cell_px,
-        );
-        let check = FastPathCheck {
-            inlier_ratio: solution.num_inliers as f64 / pixels.len().max(1) as f64,
-            cell_share: supported as f64 / all.max(1) as f64,
-            log10_nfa: sure.log10_nfa,
-            pose: Some(solution.pose),
-        };
-        let settled = check.inlier_ratio >= self.min_inlier_ratio && check.cell_share >= self.min_cell_share;
-        Ok(if settled { Ok(solution) } else { Err(check) })
+        let inlier_ratio = solution.num_inliers as f64 / pixels.len().max(1) as f64;
+        let cell_share = supported as f64 / all.max(1) as f64;
+        if inlier_ratio >= self.min_inlier_ratio && cell_share >= self.min_cell_share {
+            return Ok(Ok(solution));
+        }
+        // Only an unsettled frame reports how sure its best pose is (a settled one is measured
+        // once, as every published pose is).
+        let (k, th, cell) = (&frame.intrinsics, pnp.threshold_px, pnp.coverage_cell_px);
+        let log10_nfa = Significance::of(k, &frame.correspondences, &solution.pose, th, cell).log10_nfa;
+        Ok(Err(FastPathCheck { inlier_ratio, cell_share, log10_nfa, pose: Some(solution.pose) }))
     }
 }
 

@@ -4,12 +4,12 @@
 //! explains a rigidly displaced patch of matches; the whole image's depth can, since a wrong pose
 //! sees different geometry everywhere. Pure math, no I/O.
 
+use std::sync::Arc;
+
 use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{fit_increasing_affine, AffineFitParams, DepthImage, DepthKind, Intrinsics, PriorSpace};
-use std::sync::Arc;
-
 use crate::map_index::{CulledRender, IndexSettings, MapIndex, MapScale, PointSlice};
 use crate::pnp::{Agreement, PoseVerifier, Verification};
 use crate::rng::splitmix64_hash;
