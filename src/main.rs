@@ -249,12 +249,13 @@ fn frame_line(loc: &Localization) -> String {
         _ => String::new(),
     };
     format!(
-        "frame {}: {} kept, {} inliers, {} hypotheses, {:.2} ms (fast path {:.2}, geometry {:.2}, reject {:.2}, \
-         pnp {:.2}){}{}{}{}{}",
+        "frame {}: {} kept, {} inliers, {} hypotheses in {} robust passes, {:.2} ms (fast path {:.2}, geometry {:.2}, \
+         reject {:.2}, pnp {:.2}){}{}{}{}{}",
         loc.stamp,
         loc.kept.len(),
         loc.num_inliers,
         loc.pnp_iterations,
+        loc.robust_passes,
         loc.timings.total_ms,
         loc.timings.fast_path_ms,
         loc.timings.geometry_ms,
@@ -263,7 +264,7 @@ fn frame_line(loc: &Localization) -> String {
         fast_path,
         loc.prior_quality.map(|q| format!(", prior quality {q:.2}")).unwrap_or_default(),
         loc.log10_nfa.map(|n| format!(", log10 NFA {n:.1}")).unwrap_or_default(),
-        if loc.confirm_search { ", checked by a plain search over every match" } else { "" },
+        if loc.confirm_search { ", checked by the plain search going on over every match" } else { "" },
         loc.failure.as_ref().map(|f| format!(" — no pose: {f}")).unwrap_or_default()
     )
 }

@@ -26,15 +26,21 @@ pub struct Intrinsics {
     pub height: u32,
 }
 
+/// Smallest camera depth that counts as in front of the camera: one visibility rule for PnP's
+/// scoring and refinement and for every projection through [`Intrinsics::project`] (the last
+/// choice's and the significance's support), so they agree on which matches a pose explains.
+pub const MIN_DEPTH: f64 = 1e-9;
+
 impl Intrinsics {
     /// The 3×3 camera matrix K.
     pub fn matrix(&self) -> Matrix3<f64> {
         Matrix3::new(self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0)
     }
 
-    /// Projects a point in the camera frame to a pixel; `None` behind the camera.
+    /// Projects a point in the camera frame to a pixel; `None` behind the camera (depth not
+    /// above [`MIN_DEPTH`]).
     pub fn project(&self, p: &Point3<f64>) -> Option<Point2<f64>> {
-        (p.z > 0.0).then(|| Point2::new(self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy))
+        (p.z > MIN_DEPTH).then(|| Point2::new(self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy))
     }
 
     /// Distance in pixels between `pixel` and the projection of the camera-frame point `p`;

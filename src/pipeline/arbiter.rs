@@ -2,34 +2,12 @@
 //! frame: rejection keeps a subset so that sampling is fast, and on it two poses can explain
 //! about as much (a pose and its mirror across a plane that holds most of the kept true matches,
 //! as at close range; a wrong cluster the weak prior prefers); the matches rejection left out
-//! tell them apart, and so does a search over all of them in the rejector's order.
+//! tell them apart.
 
 use nalgebra::Isometry3;
 
-use super::cascade::Matches;
-use crate::frame::{Correspondence, Frame};
+use crate::frame::Correspondence;
 use crate::geometry::Intrinsics;
-use crate::pnp::{PnpParams, PoseGate};
-
-/// A candidate of the last choice that the kept set cannot give: PROSAC over every
-/// correspondence of `frame`, ranked by the rejector's `scores` (one per correspondence), with
-/// at most `iterations` hypotheses of `pnp` (coverage scoring as PnP's), inside `gate` if any.
-/// Its prefix starts on the kept matches and grows into those ranked just under the keep
-/// threshold: where rejection left most true matches out (close range, a kept set that a
-/// plane's mirror pose explains as well), they are there. `None` when it finds no consensus.
-pub fn ranked_search(
-    frame: &Frame,
-    scores: &[f32],
-    pnp: &PnpParams,
-    iterations: usize,
-    gate: Option<&PoseGate>,
-) -> Option<Isometry3<f64>> {
-    if iterations == 0 || scores.len() != frame.correspondences.len() {
-        return None;
-    }
-    let matches = Matches::ranked(frame, scores.to_vec());
-    matches.prosac(frame, pnp, iterations, gate).ok().map(|solution| solution.pose)
-}
 
 /// How much of a frame's correspondences a pose explains.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::arbiter::CellGrid;
 use super::significance::Significance;
 use crate::frame::Frame;
-use crate::pnp::{solve_pnp_ransac, Guidance, PnpParams, PnpSolution, PoseGate, Problem};
+use crate::pnp::{Guidance, PnpParams, PnpSolution, PoseGate, Problem, RansacSearch};
 
 /// When the budgeted LO-RANSAC settles a frame on its own.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -47,10 +47,14 @@ pub struct CascadeParams {
     /// level is 1; 10⁻³ asks a thousand times more of a pose before it overrules the network
     /// (the shared extreme frames' wrong plain poses reach 10^−1.6). 0: never checked.
     pub confirm_nfa: f64,
-    /// A pose is published when its support among every match is meaningful (number of false
+    /// A pose is published when its support among every match is significant (number of false
     /// alarms at most this) or the dense prior confirms it (`verify.min_trust`); else the frame
-    /// reports it unsure and publishes none: a likely-wrong pose is worse than none. 1 is
-    /// a-contrario's own level; 0: publish every pose.
+    /// reports it unsure and publishes none: a likely-wrong pose is worse than none. The NFA
+    /// bounds the poses that wrong matches alone are expected to support so well on a frame,
+    /// so this level is the share of frames without a true pose that may still publish one on
+    /// geometry alone: 0.01, one in a hundred, under the 5 % of wrong poses a user can live
+    /// with (a-contrario's own level of 1, one a frame, let 9.4 % of the poses published on
+    /// the shared extreme-harsh bag be wrong; here 2.2 %). 0: publish every pose.
     pub publish_nfa: f64,
 }
 
@@ -66,7 +70,7 @@ impl Default for CascadeParams {
             grid_columns: 16,
             last_resort_iterations: 10_000,
             confirm_nfa: 0.001,
-            publish_nfa: 1.0,
+            publish_nfa: 0.01,
         }
     }
 }
@@ -84,59 +88,77 @@ pub struct FastPathCheck {
 }
 
 impl CascadeParams {
-    /// The budgeted RANSAC's solution when it settles the frame, else what it measured; `pnp`
-    /// as for the frame's camera and with the seed, poses only inside `gate` when there is one.
+    /// The plain search of `frame` (its first robust pass, not yet started): LO-RANSAC over
+    /// every correspondence, PROSAC by the matcher's scores, inlier count, no coverage or
+    /// verification; `pnp` as for the frame's camera and with the seed, poses only inside
+    /// `gate` when there is one. The fast path runs its first stages; confirming or rescuing
+    /// a guided pose goes on with it ([`CascadeParams::search_on`]). `None` when the frame
+    /// cannot be searched at all (too few usable matches, degenerate map points).
+    pub fn plain_search(&self, frame: &Frame, pnp: &PnpParams, gate: Option<&PoseGate>) -> Option<PlainSearch> {
+        let matches = Matches::of(frame);
+        // One PROSAC schedule over the matcher's order spans every stage: the fast path draws
+        // from the best ranked matches, confirming and the last resort go on growing the pool.
+        let budget = self.max_iterations.max(self.last_resort_iterations).max(1);
+        let params = PnpParams { max_iterations: budget, coverage_cell_px: 0.0, ..pnp.clone() };
+        let guidance = Guidance { scores: Some(&matches.scores), gate, ..Guidance::default() };
+        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &matches.pixels, points: &matches.points };
+        let search = RansacSearch::new(&problem, &guidance, &params).ok()?;
+        Some(PlainSearch { search, min_iterations: pnp.min_iterations })
+    }
+
+    /// The fast path: the first stages of `plain` (see [`CascadeParams::plain_search`]), whose
+    /// solution is taken when it settles the frame, else what it measured.
     pub fn settle(
         &self,
         frame: &Frame,
+        plain: Option<&mut PlainSearch>,
         pnp: &PnpParams,
-        gate: Option<&PoseGate>,
     ) -> Result<PnpSolution, FastPathCheck> {
-        let matches = Matches::of(frame);
-        let pnp = &PnpParams { min_iterations: self.min_iterations, ..pnp.clone() };
+        let unsearchable = FastPathCheck { log10_nfa: f64::INFINITY, ..FastPathCheck::default() };
+        let plain = plain.ok_or(unsearchable)?;
         let budget = self.max_iterations.max(1);
         // A short probe first: a frame whose best support after it is under half the bar is
         // hard (a true ratio at the bar is all but certain to show more by then) and goes on
         // at once; only frames near the bar get the whole budget.
         let probe = self.probe_iterations.clamp(1, budget);
-        let check = match self.attempt(frame, &matches, pnp, probe, gate)? {
+        let check = match self.stage(frame, plain, pnp, probe)? {
             Ok(solution) => return Ok(solution),
             Err(check) => check,
         };
         if probe == budget || check.inlier_ratio < 0.5 * self.min_inlier_ratio {
             return Err(check);
         }
-        self.attempt(frame, &matches, pnp, budget, gate)?
+        self.stage(frame, plain, pnp, budget)?
     }
 
-    /// The last resort for a frame the rejection-guided path left without a pose: plain
-    /// LO-RANSAC on every correspondence (sampled in the matcher's score order), `None` when it
-    /// finds no consensus either or the step is off.
-    pub fn last_resort(&self, frame: &Frame, pnp: &PnpParams, gate: Option<&PoseGate>) -> Option<PnpSolution> {
-        if self.last_resort_iterations == 0 {
-            return None;
-        }
-        Matches::of(frame).lo_ransac(frame, pnp, self.last_resort_iterations, gate).ok()
+    /// `plain` on from where it stopped to the last resort's budget
+    /// ([`CascadeParams::last_resort_iterations`]): its solution, `None` when it finds no
+    /// consensus. For a frame whose guided pose is not sure, or that the guided search left
+    /// without one.
+    pub fn search_on(&self, plain: &mut PlainSearch) -> Option<PnpSolution> {
+        plain.search.run_until(self.last_resort_iterations, plain.min_iterations);
+        plain.search.solution().ok()
     }
 
-    /// LO-RANSAC on every correspondence with at most `iterations` hypotheses: `Ok(Ok(pose))`
-    /// when it settles the frame, `Ok(Err(check))` with what it measured when it does not.
-    fn attempt(
+    /// One stage of the fast path: the plain search on to `iterations` in all; `Ok(Ok(pose))`
+    /// when its solution settles the frame, `Ok(Err(check))` with what it measured when not.
+    fn stage(
         &self,
         frame: &Frame,
-        matches: &Matches,
+        plain: &mut PlainSearch,
         pnp: &PnpParams,
         iterations: usize,
-        gate: Option<&PoseGate>,
     ) -> Result<Result<PnpSolution, FastPathCheck>, FastPathCheck> {
-        let solution = matches
-            .lo_ransac(frame, pnp, iterations, gate)
+        plain.search.run_until(iterations, self.min_iterations.min(iterations));
+        let solution = plain
+            .search
+            .solution()
             .map_err(|_| FastPathCheck { log10_nfa: f64::INFINITY, ..FastPathCheck::default() })?;
         let grid = CellGrid::new(&frame.intrinsics, frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64);
-        let pixels = &matches.pixels;
-        let all = grid.occupied(pixels.iter());
-        let supported = grid.occupied(pixels.iter().zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p));
-        let inlier_ratio = solution.num_inliers as f64 / pixels.len().max(1) as f64;
+        let pixels = frame.correspondences.iter().map(|c| &c.pixel);
+        let all = grid.occupied(pixels.clone());
+        let supported = grid.occupied(pixels.zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p));
+        let inlier_ratio = solution.num_inliers as f64 / frame.correspondences.len().max(1) as f64;
         let cell_share = supported as f64 / all.max(1) as f64;
         if inlier_ratio >= self.min_inlier_ratio && cell_share >= self.min_cell_share {
             return Ok(Ok(solution));
@@ -149,54 +171,35 @@ impl CascadeParams {
     }
 }
 
-/// A frame's correspondences split as PnP takes them, with the scores PROSAC ranks them by;
-/// built once for both attempts of the fast path.
-pub(super) struct Matches {
+/// A frame's plain search (its first robust pass), run in stages: the fast path's probe and
+/// budget, then, for a frame whose guided pose is not sure, on to the last resort's budget.
+pub struct PlainSearch {
+    search: RansacSearch,
+    /// At least this many hypotheses before adaptive stopping, past the fast path (PnP's floor).
+    min_iterations: usize,
+}
+
+impl PlainSearch {
+    /// Hypotheses drawn so far.
+    pub fn iterations(&self) -> usize {
+        self.search.iterations()
+    }
+}
+
+/// A frame's correspondences split as PnP takes them, with the matcher's scores PROSAC ranks
+/// them by.
+struct Matches {
     pixels: Vec<nalgebra::Point2<f64>>,
     points: Vec<nalgebra::Point3<f64>>,
     scores: Vec<f32>,
 }
 
 impl Matches {
-    /// Ranked by the matcher's scores.
     fn of(frame: &Frame) -> Self {
-        Self::ranked(frame, frame.correspondences.iter().map(|c| c.score).collect())
-    }
-
-    /// Ranked by `scores`, one per correspondence (e.g. the rejector's).
-    pub(super) fn ranked(frame: &Frame, scores: Vec<f32>) -> Self {
         Self {
             pixels: frame.correspondences.iter().map(|c| c.pixel).collect(),
             points: frame.correspondences.iter().map(|c| c.point).collect(),
-            scores,
+            scores: frame.correspondences.iter().map(|c| c.score).collect(),
         }
-    }
-
-    /// Plain LO-RANSAC on these matches (PROSAC by the matcher's scores, inlier count, no
-    /// coverage or verification) with at most `iterations` hypotheses, inside `gate` if any.
-    fn lo_ransac(
-        &self,
-        frame: &Frame,
-        pnp: &PnpParams,
-        iterations: usize,
-        gate: Option<&PoseGate>,
-    ) -> Result<PnpSolution, crate::pnp::PnpError> {
-        self.prosac(frame, &PnpParams { coverage_cell_px: 0.0, ..pnp.clone() }, iterations, gate)
-    }
-
-    /// PROSAC by these matches' scores with `pnp` (its scoring, no verification) and at most
-    /// `iterations` hypotheses, inside `gate` if any.
-    pub(super) fn prosac(
-        &self,
-        frame: &Frame,
-        pnp: &PnpParams,
-        iterations: usize,
-        gate: Option<&PoseGate>,
-    ) -> Result<PnpSolution, crate::pnp::PnpError> {
-        let params =
-            PnpParams { max_iterations: iterations, min_iterations: pnp.min_iterations.min(iterations), ..pnp.clone() };
-        let guidance = Guidance { scores: Some(&self.scores), gate, ..Guidance::default() };
-        let problem = Problem { intrinsics: &frame.intrinsics, pixels: &self.pixels, points: &self.points };
-        solve_pnp_ransac(&problem, &guidance, &params)
     }
 }

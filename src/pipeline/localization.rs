@@ -120,6 +120,10 @@ pub struct Localization {
     /// Whether the pose the rejector's order found was not sure enough
     /// ([`super::CascadeParams::confirm_nfa`]) and a plain search over every match checked it.
     pub confirm_search: bool,
+    /// Robust-estimation passes run on the frame (at most two): the plain search over every
+    /// match, however many stages it ran (the fast path's, then confirming or rescuing), and
+    /// the search guided by the rejector on the kept matches.
+    pub robust_passes: usize,
     pub timings: StageTimings,
     pub failure: Option<Failure>,
 }
@@ -144,6 +148,7 @@ impl Localization {
             last_resort: false,
             log10_nfa: None,
             confirm_search: false,
+            robust_passes: 0,
             timings: StageTimings::default(),
             failure: None,
         }

@@ -23,7 +23,7 @@ mod refine;
 mod scratch;
 mod significance;
 
-pub use cascade::{CascadeParams, FastPathCheck};
+pub use cascade::{CascadeParams, FastPathCheck, PlainSearch};
 pub use localization::{Failure, Localization, Method, StageTimings};
 pub use params::LocalizerParams;
 pub use refine::FinalRefine;
@@ -143,16 +143,16 @@ impl Localizer {
         &self.params
     }
 
+    /// One frame through at most two robust passes: the plain search over every match (the
+    /// fast path's stages; a frame they settle ends there) and the search guided by the
+    /// rejector on the kept matches, whose pose, when it is not sure, the plain search goes on
+    /// to confirm or replace (and rescues a frame the guided search leaves without a pose).
     pub fn process(&mut self, frame: &Frame) -> Localization {
         let start = Instant::now();
         let mut out = Localization::nothing_yet(frame, self.params.method);
-        if let Err(failure) = self.validate(frame) {
-            out.failure = Some(failure);
-        } else if self.overlap_fast_path {
-            self.fast_path_beside_geometry(frame, &mut out);
-        } else if !(self.fast_path_applies() && self.fast_path(frame, &mut out)) {
-            self.build_geometry(frame, &mut out);
-            self.reject_and_solve(frame, &mut out);
+        match self.validate(frame) {
+            Ok(()) => self.localize(frame, &mut out),
+            Err(failure) => out.failure = Some(failure),
         }
         // A frame the fast path did not settle predicts the next one: it builds its geometry
         // while the fast path runs.
@@ -162,17 +162,40 @@ impl Localizer {
         out
     }
 
+    /// The fast path (beside the geometry when the last frame predicts this one needs it), then,
+    /// unless it settled the frame, rejection and the guided search.
+    fn localize(&mut self, frame: &Frame, out: &mut Localization) {
+        let (plain, geometry_built) = if self.overlap_fast_path {
+            (self.fast_path_beside_geometry(frame, out), true)
+        } else if self.fast_path_applies() {
+            (self.fast_path(frame, out), false)
+        } else {
+            (None, false)
+        };
+        if out.fast_path {
+            return;
+        }
+        if !geometry_built {
+            self.build_geometry(frame, out);
+        }
+        self.reject_and_solve(frame, plain, out);
+    }
+
     /// Whether frames try the cascade's fast path first.
     fn fast_path_applies(&self) -> bool {
         self.params.cascade.enabled && self.params.method != Method::Ransac
     }
 
-    /// The cascade's first step: a budgeted LO-RANSAC on the raw correspondences. Whether it
-    /// settled the frame (then `out` holds the pose and its RANSAC inliers as the kept set).
-    fn fast_path(&self, frame: &Frame, out: &mut Localization) -> bool {
-        let (settled, ms) = settle_timed(&self.params.cascade, frame, &self.pnp_params(frame), self.pose_gate.as_ref());
+    /// The cascade's first step: the first stages of the plain search on the raw
+    /// correspondences, which settle the frame when its support is unambiguous (then `out`
+    /// holds the pose and its inliers as the kept set). The search, to go on with.
+    fn fast_path(&self, frame: &Frame, out: &mut Localization) -> Option<PlainSearch> {
+        let gate = self.pose_gate.as_ref();
+        let (settled, plain, ms) = fast_path_timed(&self.params.cascade, frame, &self.pnp_params(frame), gate);
         out.timings.fast_path_ms = ms;
-        self.take_fast_path(frame, settled, out)
+        out.robust_passes += usize::from(plain.is_some());
+        self.take_fast_path(frame, settled, out);
+        plain
     }
 
     /// The fast path on this thread and the frame's geometry on another, side by side (the
@@ -180,13 +203,13 @@ impl Localizer {
     /// after one the fast path did not settle. The outputs are those of the fast path first and
     /// the geometry after; when the fast path settles the frame after all, its geometry was
     /// built for nothing.
-    fn fast_path_beside_geometry(&mut self, frame: &Frame, out: &mut Localization) {
+    fn fast_path_beside_geometry(&mut self, frame: &Frame, out: &mut Localization) -> Option<PlainSearch> {
         let pnp = self.pnp_params(frame);
         let (cascade, gate) = (&self.params.cascade, self.pose_gate.as_ref());
         let geometry = GeometryStep::of(&self.params, self.rejector.is_some());
         let scratch = &mut self.scratch;
-        let ((settled, fast_path_ms), geometry_ms) = rayon::join(
-            || settle_timed(cascade, frame, &pnp, gate),
+        let ((settled, plain, fast_path_ms), geometry_ms) = rayon::join(
+            || fast_path_timed(cascade, frame, &pnp, gate),
             || {
                 let t = Instant::now();
                 geometry.build(frame, scratch);
@@ -194,10 +217,11 @@ impl Localizer {
             },
         );
         out.timings.fast_path_ms = fast_path_ms;
+        out.robust_passes += usize::from(plain.is_some());
         if !self.take_fast_path(frame, settled, out) {
             out.timings.geometry_ms = geometry_ms;
-            self.reject_and_solve(frame, out);
         }
+        plain
     }
 
     /// The fast path's outcome into `out`: its pose when it `settled` the frame (true), else
@@ -230,7 +254,7 @@ impl Localizer {
 
     /// Rejection on the frame's geometry (built), then PnP on the kept correspondences (sampled
     /// in score order), verified against the prior.
-    fn reject_and_solve(&mut self, frame: &Frame, out: &mut Localization) {
+    fn reject_and_solve(&mut self, frame: &Frame, plain: Option<PlainSearch>, out: &mut Localization) {
         let scratch = &mut self.scratch;
         out.scale_shift = scratch.geometry.scale_shift;
         // Rejection: scores and the kept subset, best first.
@@ -248,13 +272,20 @@ impl Localizer {
 
         let t = Instant::now();
         scratch.fill_pnp_inputs(frame, rejection.as_ref());
-        self.solve(frame, rejection.as_ref(), out);
+        self.solve(frame, rejection.as_ref(), plain, out);
         out.timings.pnp_ms = ms_since(t);
     }
 
-    /// PnP on the inputs in the scratch, verified against the prior; the kept set and the pose
-    /// into `out`.
-    fn solve(&self, frame: &Frame, rejection: Option<&crate::reject::Rejection>, out: &mut Localization) {
+    /// PnP on the inputs in the scratch, verified against the prior (the guided pass); the
+    /// kept set and the pose into `out`. A guided pose that is not sure is confirmed by the
+    /// plain pass going on; a frame the guided pass leaves without a pose, rescued by it.
+    fn solve(
+        &self,
+        frame: &Frame,
+        rejection: Option<&crate::reject::Rejection>,
+        mut plain: Option<PlainSearch>,
+        out: &mut Localization,
+    ) {
         let scratch = &self.scratch;
         let verifier = self.verifier(frame);
         let guidance = Guidance {
@@ -266,27 +297,27 @@ impl Localizer {
         };
         let pnp = self.pnp_params(frame);
         let problem = Problem { intrinsics: &frame.intrinsics, pixels: &scratch.pixels, points: &scratch.points };
-        // The last choice's ranked search needs only the scores: it runs beside PnP (both are
-        // serial), and is dropped if PnP finds nothing.
-        let last_choice = rejection.filter(|_| self.params.final_refine.enabled);
-        let ranked_iterations = self.ranked_iterations();
-        let gate = self.pose_gate.as_ref();
-        let (solved, ranked) = rayon::join(
-            || solve_pnp_ransac(&problem, &guidance, &pnp),
-            || last_choice.and_then(|r| arbiter::ranked_search(frame, &r.scores, &pnp, ranked_iterations, gate)),
-        );
+        let last_choice = rejection.is_some() && self.params.final_refine.enabled;
+        let refine_alternatives = self.params.final_refine.alternatives;
+        out.robust_passes += 1;
+        let solved = solve_pnp_ransac(&problem, &guidance, &pnp);
         let subset = &scratch.subset;
         let with_scores = |r: &crate::reject::Rejection| -> Vec<Correspondence> {
             subset.iter().map(|&i| with_score(frame.correspondences[i], r.scores[i])).collect()
         };
         match solved {
             Ok(mut solution) => {
-                if last_choice.is_some() {
+                if last_choice {
                     self.refine_on_all(frame, &mut solution);
-                    let fast_path_pose = out.fast_path_check.and_then(|c| c.pose);
-                    let poses: Vec<_> = fast_path_pose.into_iter().chain(ranked).collect();
-                    self.arbitrate_on_all(frame, &poses, self.params.final_refine.switch_margin, &mut solution);
-                    self.confirm_on_all(frame, &mut solution, out);
+                    let fast_path_pose = out.fast_path_check.and_then(|c| c.pose).filter(|_| refine_alternatives > 0);
+                    let fast_path_pose: Vec<_> = fast_path_pose.into_iter().collect();
+                    self.arbitrate_on_all(
+                        frame,
+                        &fast_path_pose,
+                        self.params.final_refine.switch_margin,
+                        &mut solution,
+                    );
+                    self.confirm_on_all(frame, &mut solution, &mut plain, out);
                 }
                 out.kept = match rejection {
                     Some(r) => with_scores(r),
@@ -303,46 +334,71 @@ impl Localizer {
                 if let Some(r) = rejection {
                     out.kept = with_scores(r);
                 }
-                if !(rejection.is_some() && matches!(e, PnpError::NoConsensus { .. }) && self.last_resort(frame, out)) {
+                let rescued = rejection.is_some()
+                    && matches!(e, PnpError::NoConsensus { .. })
+                    && self.last_resort(frame, &mut plain, out);
+                if !rescued {
                     out.failure = Some(Failure::Pnp(e));
                 }
             }
         }
     }
 
-    /// The cascade's last step ([`CascadeParams::last_resort`]): whether it found the pose, which
-    /// `out` then holds with its inliers as the kept set.
-    fn last_resort(&self, frame: &Frame, out: &mut Localization) -> bool {
-        let gate = self.pose_gate.as_ref();
-        let Some(solution) = self.params.cascade.last_resort(frame, &self.pnp_params(frame), gate) else {
-            return false;
-        };
+    /// The cascade's last step ([`CascadeParams::last_resort_iterations`]): the plain pass on
+    /// to its budget; whether it found the pose, which `out` then holds with its inliers as the
+    /// kept set.
+    fn last_resort(&self, frame: &Frame, plain: &mut Option<PlainSearch>, out: &mut Localization) -> bool {
+        let Some(solution) = self.search_on(frame, plain, out) else { return false };
         out.last_resort = true;
         self.accept_plain(frame, solution, out);
         true
     }
 
     /// A pose the rejector's order found whose support among every match is not sure (its
-    /// number of false alarms above [`CascadeParams::confirm_nfa`]): plain LO-RANSAC over every
-    /// match searches on, and its pose replaces the found one when it is sure itself, surer, and
+    /// number of false alarms above [`CascadeParams::confirm_nfa`]): the plain pass over every
+    /// match goes on, and its pose replaces the found one when it is sure itself, surer, and
     /// covers more cells once refined ([`arbiter`]). An unsure pose is replaced by a sure one,
     /// never by another unsure one: on the shared extreme frames, wrong matches moved patch-wise
     /// give plain LO-RANSAC wrong poses with more inliers than the true pose (up to 22 against
     /// 9), but none of them sure (log₁₀ NFA ≥ −1.6 in cells); a rejector that lost the true
     /// matches leaves a pose that a sure one over every match replaces (log₁₀ NFA −5 to −10).
-    fn confirm_on_all(&self, frame: &Frame, solution: &mut PnpSolution, out: &mut Localization) {
+    fn confirm_on_all(
+        &self,
+        frame: &Frame,
+        solution: &mut PnpSolution,
+        plain: &mut Option<PlainSearch>,
+        out: &mut Localization,
+    ) {
         let cascade = &self.params.cascade;
-        let pnp = self.pnp_params(frame);
         let found = self.significance(frame, &solution.pose);
         if !(cascade.confirm_nfa > 0.0) || found.below(cascade.confirm_nfa) {
             return;
         }
-        let Some(plain) = cascade.last_resort(frame, &pnp, self.pose_gate.as_ref()) else { return };
+        let Some(confirming) = self.search_on(frame, plain, out) else { return };
         out.confirm_search = true;
-        out.pnp_iterations += plain.iterations;
-        let sure = self.significance(frame, &plain.pose);
+        out.pnp_iterations += confirming.iterations;
+        let sure = self.significance(frame, &confirming.pose);
         if sure.below(cascade.confirm_nfa) && sure.log10_nfa < found.log10_nfa {
-            self.arbitrate_on_all(frame, &[plain.pose], 1.0, solution);
+            self.arbitrate_on_all(frame, &[confirming.pose], 1.0, solution);
+        }
+    }
+
+    /// The plain pass on to the last resort's budget, from where it stopped: its solution,
+    /// `None` when it finds no consensus.
+    fn search_on(&self, frame: &Frame, plain: &mut Option<PlainSearch>, out: &mut Localization) -> Option<PnpSolution> {
+        let cascade = &self.params.cascade;
+        if cascade.last_resort_iterations == 0 {
+            return None;
+        }
+        self.start_plain(frame, plain, out);
+        cascade.search_on(plain.as_mut()?)
+    }
+
+    /// The frame's plain search, a new one (counted) where no fast path started it.
+    fn start_plain(&self, frame: &Frame, plain: &mut Option<PlainSearch>, out: &mut Localization) {
+        if plain.is_none() {
+            *plain = self.params.cascade.plain_search(frame, &self.pnp_params(frame), self.pose_gate.as_ref());
+            out.robust_passes += usize::from(plain.is_some());
         }
     }
 
@@ -372,11 +428,11 @@ impl Localizer {
         out.log10_nfa = Some(self.significance(frame, &solution.pose).log10_nfa);
     }
 
-    /// A found pose that neither every match makes meaningful ([`CascadeParams::publish_nfa`])
+    /// A found pose that neither every match makes significant ([`CascadeParams::publish_nfa`])
     /// nor the prior confirms (`verify.min_trust`) is not published: the frame reports it unsure.
-    /// On the three shared extreme bags this holds back 17 of their 28 wrong poses and 1 of their
-    /// 153 right ones (the wrong ones agree with the prior in 20–70 % of their view, most right
-    /// unsure ones in 76–86 %); the sift and hard bags publish every pose as before.
+    /// On the three shared extreme bags this leaves 1.8 / 2.2 / 7.4 % of the published poses
+    /// wrong (10 / 20 / 15 % before #34; the wrong ones left agree with the prior in 70–79 % of
+    /// their view); the sift and hard bags publish every pose.
     fn withhold_unsure(&self, out: &mut Localization) {
         let (Some(_), Some(log10_nfa)) = (out.pose, out.log10_nfa) else { return };
         let level = self.params.cascade.publish_nfa;
@@ -425,19 +481,8 @@ impl Localizer {
         );
     }
 
-    /// Hypotheses of the last choice's search over every correspondence in the rejector's
-    /// scores order ([`arbiter::ranked_search`]): none when the last choice is off.
-    fn ranked_iterations(&self) -> usize {
-        let refine = &self.params.final_refine;
-        if refine.alternatives > 0 {
-            refine.ranked_iterations
-        } else {
-            0
-        }
-    }
-
     /// The pool's first `final_refine.alternatives` other candidates and `poses` (the fast
-    /// path's unsettled pose, the ranked search's), each refined on every correspondence as the
+    /// path's unsettled pose, or the plain search's confirming one), each refined on every correspondence as the
     /// chosen pose was ([`arbiter`]): the best supported of them replaces the chosen pose when
     /// it covers more than `final_refine.switch_margin` times its cells.
     fn arbitrate_on_all(&self, frame: &Frame, poses: &[Isometry3<f64>], margin: f64, solution: &mut PnpSolution) {
@@ -448,7 +493,7 @@ impl Localizer {
         };
         let (incumbent, incumbent_inliers) = support(&solution.pose);
         let pool = std::mem::take(&mut solution.alternatives).into_iter().take(refine.alternatives);
-        let candidates = pool.chain(poses.iter().copied().filter(|_| refine.alternatives > 0)).map(|start| {
+        let candidates = pool.chain(poses.iter().copied()).map(|start| {
             let mut candidate = PnpSolution { pose: start, ..solution.clone() };
             self.refine_on_all(frame, &mut candidate);
             let (support, inliers) = support(&candidate.pose);
@@ -505,15 +550,19 @@ fn with_score(mut c: Correspondence, score: f32) -> Correspondence {
     c
 }
 
-/// The cascade's fast path on `frame`, and how long it took (ms).
-fn settle_timed(
+/// The plain search of `frame` and the fast path's stages of it: its settled solution or what
+/// it measured, the search to go on with (`None` for a frame it cannot search), and how long it
+/// took (ms).
+fn fast_path_timed(
     cascade: &CascadeParams,
     frame: &Frame,
     pnp: &PnpParams,
     gate: Option<&PoseGate>,
-) -> (Result<PnpSolution, FastPathCheck>, f64) {
+) -> (Result<PnpSolution, FastPathCheck>, Option<PlainSearch>, f64) {
     let t = Instant::now();
-    (cascade.settle(frame, pnp, gate), ms_since(t))
+    let mut plain = cascade.plain_search(frame, pnp, gate);
+    let settled = cascade.settle(frame, plain.as_mut(), pnp);
+    (settled, plain, ms_since(t))
 }
 
 fn ms_since(t: Instant) -> f64 {

@@ -39,10 +39,6 @@ pub struct FinalRefine {
     /// 0: off.
     pub alternatives: usize,
     pub switch_margin: f64,
-    /// With `alternatives` on: hypotheses of a PROSAC over every correspondence in the
-    /// rejector's score order, whose pose is a candidate too (the kept matches first, then
-    /// those ranked just under the keep threshold); 0: off.
-    pub ranked_iterations: usize,
 }
 
 impl Default for FinalRefine {
@@ -56,7 +52,6 @@ impl Default for FinalRefine {
             rounds: 4,
             alternatives: 4,
             switch_margin: 1.25,
-            ranked_iterations: 150,
         }
     }
 }

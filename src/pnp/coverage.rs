@@ -4,8 +4,8 @@
 
 use nalgebra::Vector2;
 
+use super::hypothesis::{Bound, Hypothesis, Sprt};
 use super::ops::Positions;
-use super::scorer::{Bound, Hypothesis, Sprt};
 use super::MapToCamera;
 use crate::geometry::{fit_increasing_affine, AffineFitParams, PriorSpace};
 

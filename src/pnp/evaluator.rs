@@ -2,9 +2,10 @@
 //! into a better one: LO-RANSAC's local optimisation, and the final refinement into a
 //! [`PnpSolution`].
 
+use super::hypothesis::{Bound, Hypothesis};
 use super::lm::{covariance, lm_refine, Loss};
 use super::ops::Positions;
-use super::scorer::{Bound, Hypothesis, Scorer};
+use super::scorer::Scorer;
 use super::{MapToCamera, PnpError, PnpParams, PnpSolution, RobustLoss};
 
 /// Rounds of local optimisation per new best model, and LM iterations per round.

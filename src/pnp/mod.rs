@@ -28,6 +28,7 @@ mod coverage;
 mod epnp;
 mod evaluator;
 mod gate;
+mod hypothesis;
 mod lm;
 mod nonminimal;
 mod ops;
@@ -49,7 +50,7 @@ pub use gate::{GateMiss, PoseGate};
 pub use lm::{pose_covariance, refine_pose, RefineOptions, RefineResult};
 pub use nonminimal::solve_pnp_nonminimal;
 pub use p3p::{p3p, P3pSolutions};
-pub use ransac::solve_pnp_ransac;
+pub use ransac::{solve_pnp_ransac, RansacSearch};
 
 /// Why a PnP solve produced no pose.
 #[derive(Debug, Clone, PartialEq, Error)]

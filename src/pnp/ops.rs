@@ -28,8 +28,7 @@ impl Cam {
     }
 }
 
-/// Smallest camera depth that counts as "in front".
-pub(crate) const MIN_DEPTH: f64 = 1e-9;
+pub(crate) use crate::geometry::MIN_DEPTH;
 
 /// Squared pixel reprojection error, `+∞` behind the camera: the one projection op.
 #[inline(always)]

@@ -3,7 +3,7 @@
 //! when most of the smaller inlier set is shared: the cluster keeps its best.
 
 use super::evaluator::Evaluator;
-use super::scorer::{Bound, Hypothesis};
+use super::hypothesis::{Bound, Hypothesis};
 use super::{Agreement, MapToCamera, Verification};
 
 /// A hypothesis kept for verification.

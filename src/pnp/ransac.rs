@@ -7,11 +7,12 @@
 
 use super::coverage::{Coverage, PriorCheck};
 use super::evaluator::Evaluator;
+use super::hypothesis::{Bound, Hypothesis, Sprt};
 use super::ops::{check_basic, check_guidance_length, check_spread, finite_pairs, validate, Positions};
 use super::p3p::p3p_unit;
 use super::pool::Pool;
 use super::sampler::Sampler;
-use super::scorer::{msac_bounded, Bound, Hypothesis, Scorer, Sprt};
+use super::scorer::{msac_bounded, Scorer};
 use super::termination::Termination;
 use super::{Guidance, MapToCamera, PnpError, PnpParams, PnpSolution, Problem};
 use crate::rng::WyRand;
@@ -37,52 +38,50 @@ use crate::rng::WyRand;
 /// `max(4, min_inliers)` usable correspondences, coincident/collinear map points, or no pose
 /// with `min_inliers` inliers.
 pub fn solve_pnp_ransac(problem: &Problem, guidance: &Guidance, params: &PnpParams) -> Result<PnpSolution, PnpError> {
-    let Guidance { scores, prior_depths, prior_space, verification, gate } = *guidance;
-    check_basic(problem.intrinsics, problem.pixels.len(), problem.points.len())?;
-    check_guidance_length(problem, prior_depths.map(<[f64]>::len))?;
-    check_guidance_length(problem, scores.map(<[f32]>::len))?;
-    validate(params)?;
-    let pairs = finite_pairs(problem.pixels, problem.points);
-    let required = params.min_inliers.max(4);
-    if pairs.pixels.len() < required {
-        return Err(PnpError::TooFewPoints { usable: pairs.pixels.len(), required });
-    }
-    check_spread(&pairs.points)?;
-
-    let mut rng = WyRand::new(params.seed);
-    let data = Positions::shuffled(problem.intrinsics, pairs, params.threshold_px, &mut rng);
-    let sampler = Sampler::new(&data, scores, params.max_iterations);
-    let prior = prior_depths.filter(|_| params.prior_tolerance > 0.0).map(|d| PriorCheck {
-        values: data.original.iter().map(|&i| d[i]).collect(),
-        space: prior_space,
-        tolerance: params.prior_tolerance,
-    });
-    let scorer = match Coverage::new(&data.px, params.coverage_cell_px, prior) {
-        Some(coverage) => Scorer::Coverage(coverage),
-        None => Scorer::Msac,
-    };
-    let pool = verification
-        .filter(|v| v.candidates > 0 && matches!(scorer, Scorer::Coverage(_)))
-        .map(|v| Pool::new(v, params.local_optimization));
-    let termination = Termination::new(params, pool.as_ref(), data.len());
-    let mut search = Search {
-        evaluator: Evaluator::new(data, scorer),
-        sampler,
-        pool,
-        termination,
-        rng,
-        local_optimization: params.local_optimization,
-        gate,
-        best: None,
-        iterations: 0,
-        pool_sprt: SprtCache::default(),
-    };
+    let (mut search, required) = Search::new(problem, guidance, guidance.verification, params)?;
     search.run();
-    let pose = search.choice().ok_or(PnpError::NoConsensus { inliers: 0, required })?;
-    let alternatives = search.pool.as_ref().map_or_else(Vec::new, |p| p.alternatives());
-    let mut solution = search.evaluator.solution(pose, params, required, problem.pixels.len(), search.iterations)?;
-    solution.alternatives = alternatives.iter().map(MapToCamera::to_camera_to_map).collect();
-    Ok(solution)
+    search.solution(params, required, problem.pixels.len())
+}
+
+/// One robust search that can be run in stages: [`RansacSearch::run_until`] draws up to a
+/// number of hypotheses in all and stops, [`RansacSearch::solution`] says what it has found so
+/// far, and a later stage goes on from there (the same sampler, random stream and best
+/// hypothesis) instead of drawing the first hypotheses again. It has no verifier (a pool is
+/// chosen among once, at the end: [`solve_pnp_ransac`]).
+pub struct RansacSearch {
+    search: Search<'static>,
+    params: PnpParams,
+    required: usize,
+    input_len: usize,
+}
+
+impl RansacSearch {
+    /// A search not yet started, set up as [`solve_pnp_ransac`] sets it up (the same errors),
+    /// without the guidance's verification.
+    pub fn new(problem: &Problem, guidance: &Guidance, params: &PnpParams) -> Result<Self, PnpError> {
+        let (search, required) = Search::new(problem, guidance, None, params)?;
+        Ok(Self { search, params: params.clone(), required, input_len: problem.pixels.len() })
+    }
+
+    /// Draws on until `iterations` hypotheses in all (at least `min_iterations`, then until the
+    /// adaptive stopping rule ends it), from where the last stage stopped. The sampler keeps
+    /// the schedule it was set up with: PROSAC, grown to every correspondence by
+    /// `params.max_iterations`, samples uniformly beyond.
+    pub fn run_until(&mut self, iterations: usize, min_iterations: usize) {
+        self.search.termination.extend(min_iterations, iterations);
+        self.search.run();
+    }
+
+    /// Hypotheses drawn so far.
+    pub fn iterations(&self) -> usize {
+        self.search.iterations
+    }
+
+    /// What the search has found so far, refined and measured as [`solve_pnp_ransac`] returns
+    /// it; the search may go on after.
+    pub fn solution(&mut self) -> Result<PnpSolution, PnpError> {
+        self.search.solution(&self.params, self.required, self.input_len)
+    }
 }
 
 /// The state of one robust search.
@@ -93,7 +92,7 @@ struct Search<'a> {
     termination: Termination,
     rng: WyRand,
     local_optimization: bool,
-    gate: Option<&'a super::PoseGate>,
+    gate: Option<super::PoseGate>,
     best: Option<Hypothesis>,
     /// Minimal samples drawn.
     iterations: usize,
@@ -119,7 +118,68 @@ impl SprtCache {
     }
 }
 
-impl Search<'_> {
+impl<'a> Search<'a> {
+    /// A search of `problem` as `guidance` and `params` say, with `verification` (the
+    /// guidance's, or none), and the inliers a pose needs.
+    fn new(
+        problem: &Problem,
+        guidance: &Guidance,
+        verification: Option<super::Verification<'a>>,
+        params: &PnpParams,
+    ) -> Result<(Self, usize), PnpError> {
+        let Guidance { scores, prior_depths, prior_space, gate, .. } = *guidance;
+        check_basic(problem.intrinsics, problem.pixels.len(), problem.points.len())?;
+        check_guidance_length(problem, prior_depths.map(<[f64]>::len))?;
+        check_guidance_length(problem, scores.map(<[f32]>::len))?;
+        validate(params)?;
+        let pairs = finite_pairs(problem.pixels, problem.points);
+        let required = params.min_inliers.max(4);
+        if pairs.pixels.len() < required {
+            return Err(PnpError::TooFewPoints { usable: pairs.pixels.len(), required });
+        }
+        check_spread(&pairs.points)?;
+
+        let mut rng = WyRand::new(params.seed);
+        let data = Positions::shuffled(problem.intrinsics, pairs, params.threshold_px, &mut rng);
+        let sampler = Sampler::new(&data, scores, params.max_iterations);
+        let prior = prior_depths.filter(|_| params.prior_tolerance > 0.0).map(|d| PriorCheck {
+            values: data.original.iter().map(|&i| d[i]).collect(),
+            space: prior_space,
+            tolerance: params.prior_tolerance,
+        });
+        let scorer = match Coverage::new(&data.px, params.coverage_cell_px, prior) {
+            Some(coverage) => Scorer::Coverage(coverage),
+            None => Scorer::Msac,
+        };
+        let pool = verification
+            .filter(|v| v.candidates > 0 && matches!(scorer, Scorer::Coverage(_)))
+            .map(|v| Pool::new(v, params.local_optimization));
+        let termination = Termination::new(params, pool.as_ref(), data.len());
+        let search = Search {
+            evaluator: Evaluator::new(data, scorer),
+            sampler,
+            pool,
+            termination,
+            rng,
+            local_optimization: params.local_optimization,
+            gate: gate.cloned(),
+            best: None,
+            iterations: 0,
+            pool_sprt: SprtCache::default(),
+        };
+        Ok((search, required))
+    }
+
+    /// The verifier's choice (or the best hypothesis) refined and measured; `input_len`:
+    /// correspondences in the input.
+    fn solution(&mut self, params: &PnpParams, required: usize, input_len: usize) -> Result<PnpSolution, PnpError> {
+        let pose = self.choice().ok_or(PnpError::NoConsensus { inliers: 0, required })?;
+        let alternatives = self.pool.as_ref().map_or_else(Vec::new, |p| p.alternatives());
+        let mut solution = self.evaluator.solution(pose, params, required, input_len, self.iterations)?;
+        solution.alternatives = alternatives.iter().map(MapToCamera::to_camera_to_map).collect();
+        Ok(solution)
+    }
+
     /// Draws minimal samples until the termination rule stops.
     fn run(&mut self) {
         let n = self.evaluator.data.len();
@@ -152,7 +212,7 @@ impl Search<'_> {
     /// best so far comes back locally optimised. With a pool, every pose that enters it is
     /// offered, and the local optimum too.
     fn consider(&mut self, pose: &MapToCamera, start: usize) -> Option<Hypothesis> {
-        if self.gate.is_some_and(|g| !g.admits(pose)) {
+        if self.gate.as_ref().is_some_and(|g| !g.admits(pose)) {
             return None;
         }
         let best = self.best.as_ref().map_or(Bound::NONE, Bound::of);
@@ -185,7 +245,7 @@ impl Search<'_> {
             false => hypothesis,
         };
         // A local optimum that leaves the gate is not taken; the hypothesis inside it is.
-        let hypothesis = match self.gate.is_some_and(|g| !g.admits(&optimized.pose)) {
+        let hypothesis = match self.gate.as_ref().is_some_and(|g| !g.admits(&optimized.pose)) {
             true => hypothesis,
             false => optimized,
         };

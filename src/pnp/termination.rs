@@ -4,9 +4,9 @@
 //! is accepted or the choice settles).
 
 use super::evaluator::Evaluator;
+use super::hypothesis::{Hypothesis, Sprt};
 use super::pool::Pool;
 use super::sampler::{Sampler, M};
-use super::scorer::{Hypothesis, Sprt};
 use super::PnpParams;
 
 /// Non-randomness test of PROSAC's stopping length: tail at `z` σ of a binomial with this rate.
@@ -80,6 +80,15 @@ impl Termination {
     }
 
     /// Whether the pool was settled by its best hypothesis alone (no final verification needed).
+    /// The limits of a search's next stage (see [`super::RansacSearch::run_until`]): at least
+    /// `min_iterations` draws in all, at most `max_iterations`.
+    pub(crate) fn extend(&mut self, min_iterations: usize, max_iterations: usize) {
+        self.min_iterations = min_iterations;
+        self.max_iterations = max_iterations;
+        self.loop_min = self.loop_min.max(min_iterations);
+        self.loop_max = max_iterations;
+    }
+
     pub(crate) fn early_accepted(&self) -> bool {
         self.schedule.early_accepted
     }

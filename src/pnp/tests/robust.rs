@@ -378,3 +378,27 @@ fn a_pose_gate_keeps_the_search_near_the_prior() {
     assert!(r < 5e-3 && t < 0.2, "{r} {t}");
     assert!(gate.check(&gated.pose).is_ok());
 }
+
+/// A search run in stages is the search run at once: each stage goes on where the last one
+/// stopped (the same sampler, random stream and best hypothesis), so the fast path's stages and
+/// the confirmation after them are one robust pass, not three.
+#[test]
+fn a_search_run_in_stages_is_the_search_run_at_once() {
+    let (_, px, pw, _) = scenario(17, 300, 0.85);
+    let scores: Vec<f32> = (0..px.len()).map(|i| ((i * 7919) % 997) as f32).collect();
+    let params = PnpParams { max_iterations: 2000, min_iterations: 20, seed: 3, ..PnpParams::default() };
+    let problem = Problem { intrinsics: &k(), pixels: &px, points: &pw };
+    let guidance = Guidance { scores: Some(&scores), ..Guidance::default() };
+    let at_once = solve_pnp_ransac(&problem, &guidance, &params).unwrap();
+    let mut staged = RansacSearch::new(&problem, &guidance, &params).unwrap();
+    let mut iterations = Vec::new();
+    for until in [100, 400, 2000] {
+        staged.run_until(until, params.min_iterations);
+        iterations.push(staged.iterations());
+    }
+    let staged = staged.solution().unwrap();
+    assert_eq!(staged.pose, at_once.pose);
+    assert_eq!(staged.inliers, at_once.inliers);
+    assert_eq!(staged.iterations, at_once.iterations);
+    assert!(iterations.windows(2).all(|w| w[0] <= w[1]), "{iterations:?}");
+}
