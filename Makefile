@@ -47,7 +47,9 @@ side-by-side: build ort py-venv
 
 # All tests (unit, integration, Python-reader interop, evaluator agreement when ../shared is present).
 test: py-venv ort colcon-venv
-	ANGLE_I2P_PYTHON=$(abspath $(VENV))/bin/python $(CARGO) test --release --all-targets
+	./scripts/test_skips.sh clear
+	ANGLE_I2P_PYTHON=$(abspath $(VENV))/bin/python $(CARGO) test --release --all-targets; \
+	  status=$$?; ./scripts/test_skips.sh report; exit $$status
 
 # Long fuzzing (minutes): the proptest targets of tests/fuzz.rs with many more cases than the
 # suite's short mode. FUZZ_CASES raises or lowers it. A crash prints the shrunk input: keep it

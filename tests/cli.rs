@@ -4,7 +4,7 @@
 use std::process::Command;
 
 mod common;
-use common::{binary, manifest, onnx_runtime, python, run_ok, shared_bag, skip_or_fail};
+use common::{binary, manifest, onnx_runtime, python, record_skip, run_ok, shared_bag, skip_or_fail};
 
 #[test]
 fn synth_replay_eval_round_trip() {
@@ -143,10 +143,7 @@ fn corrupt_input_gives_an_error_naming_the_file() {
 /// `eval` must agree with `../shared/tools/baseline_opencv.py --est` on the same output bag.
 #[test]
 fn eval_agrees_with_the_reference_evaluator() {
-    let Some(bag) = shared_bag("redkitchen-hard-val") else {
-        eprintln!("SKIP: ../shared/data/redkitchen-hard-val is absent");
-        return;
-    };
+    let Some(bag) = shared_bag("redkitchen-hard-val") else { return };
     let tool = bag.join("../../tools/baseline_opencv.py");
     let Some(py) = python() else {
         return skip_or_fail("no Python with the evaluator's packages (make py-venv)");
@@ -203,4 +200,16 @@ print("ok")
 "#;
     let out_text = run_ok(Command::new(py).arg("-c").arg(script).arg(&out));
     assert_eq!(out_text.trim(), "ok");
+}
+
+/// A check that did not run is recorded for the summary `make test` prints after the tests
+/// (#36): one line per skip, the test's name and the reason, appended across tests.
+#[test]
+fn a_skipped_check_is_recorded_for_the_summary() {
+    let dir = tempfile::tempdir().expect("a temporary directory");
+    let log = dir.path().join(common::SKIP_LOG);
+    record_skip(&log, "some_test", "no shared data at ../shared/data");
+    record_skip(&log, "other_test", "two\nlines");
+    let text = std::fs::read_to_string(&log).expect("the skip log");
+    assert_eq!(text, "some_test: no shared data at ../shared/data\nother_test: two lines\n");
 }

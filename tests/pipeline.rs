@@ -126,16 +126,13 @@ fn bad_frames_fail_with_a_reason_and_the_next_frame_still_localizes() {
     assert!(loc.failure.is_none() && loc.pose.is_some(), "{:?}", loc.failure);
 }
 
-/// Localizes every frame of a shared real bag; `None` (and a printed reason) when it is absent.
+/// Localizes every frame of a shared real bag; `None` (the check recorded as skipped) when it is absent.
 fn real_bag_summary(name: &str, method: Method) -> Option<(angle_i2p::eval::Summary, f64)> {
     real_bag_summary_with(name, LocalizerParams { method, ..LocalizerParams::default() })
 }
 
 fn real_bag_summary_with(name: &str, params: LocalizerParams) -> Option<(angle_i2p::eval::Summary, f64)> {
-    let Some(bag) = shared_bag(name) else {
-        eprintln!("SKIP: ../shared/data/{name} is absent");
-        return None;
-    };
+    let bag = shared_bag(name)?;
     let method = params.method;
     let input = read_frames(&bag, &angle_i2p::params::TopicMap::default()).unwrap();
     let (rows, raw_ir) = localize_params(&input.frames, input.map.as_ref(), params);
