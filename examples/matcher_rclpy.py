@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """A matcher node for angle-i2p with rclpy, for ROS 2 users (needs a sourced ROS 2 and the
-angle_i2p_msgs package built in the workspace; see the README's "For ROS 2 users"). The same
+angle_i2p_msgs package built in the workspace; see docs/ros2.md, "For ROS 2 users"). The same
 contract as examples/matcher_cyclonedds.py, which is the tested variant:
 
 - one Correspondences message per camera image, header copied from the image (stamp exactly,

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerates the report pictures the README shows: bags/synth-extreme replayed with each method,
+# Regenerates the report pictures docs/eval.md shows: bags/synth-extreme replayed with each method,
 # then `eval --report`; a few of the report's PNGs are copied here (through pngquant, when it is
 # installed, to keep the repository small: `apt-get install pngquant`).
 set -euo pipefail

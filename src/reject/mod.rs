@@ -437,7 +437,7 @@ mod tests {
             let top: Vec<_> = out.kept.iter().take(50).collect();
             let precision = top.iter().filter(|&&&i| truth[i]).count() as f64 / top.len() as f64;
             // The angle metric is the weaker one under 70 % outliers (their centroids are shared),
-            // the aligned distance metric nearly exact: see the README's table.
+            // the aligned distance metric nearly exact: see the results in docs/results/.
             let bar = if metric == PairMetric::Distance { 0.9 } else { 0.45 };
             assert!(precision > bar, "{metric:?}: precision {precision}");
         }
