@@ -3,6 +3,10 @@
 //! each worker takes the new index between two of its frames through its own [`MapTaker`] (an
 //! `Arc` swap, no stall). The old index is dropped when the last worker lets go of it: during a
 //! swap the node holds two indexes, whatever the number of workers.
+//!
+//! Work is bounded whatever others send: one thread indexes at a time, and maps that arrive
+//! meanwhile wait in a queue of one, the newest superseding the one waiting (a storm of maps at
+//! 20 Hz once started a thread per map: ~200 threads and 2.4 GB, no pose for 30 s, #38).
 
 use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
@@ -30,6 +34,20 @@ struct SwapState {
     building: usize,
     /// Indexes built (a map superseded while it was indexed is built and not counted).
     indexed: u64,
+    /// The newest map waiting for the indexing thread, if any.
+    waiting: Option<Waiting>,
+    /// Whether the indexing thread runs.
+    indexing: bool,
+    /// Maps superseded while they waited (never indexed).
+    superseded: u64,
+}
+
+/// A map waiting to be indexed.
+struct Waiting {
+    number: u64,
+    map: Arc<MapCloud>,
+    settings: IndexSettings,
+    on_built: Box<dyn FnOnce(&MapIndex, Duration) + Send>,
 }
 
 /// An index and the number of its map.
@@ -52,24 +70,48 @@ impl MapSwap {
         self.state.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// A new map arrived: it is indexed on its own thread (the newest map wins: an older one
-    /// finishing later is not handed out); `on_built` hears of the index and how long it took.
+    /// A new map arrived: it is indexed on the indexing thread (started if it is not running),
+    /// after the map it is indexing now; a map still waiting is superseded by this one (the
+    /// newest map wins, and an older one finishing later is not handed out); `on_built` hears of
+    /// the index and how long it took.
     pub fn new_map<F>(self: &Arc<Self>, map: Arc<MapCloud>, settings: IndexSettings, on_built: F)
     where
         F: FnOnce(&MapIndex, Duration) + Send + 'static,
     {
-        let number = {
-            let mut s = self.lock();
-            s.started += 1;
-            s.building += 1;
-            s.started
-        };
+        let mut s = self.lock();
+        s.started += 1;
+        s.building += 1;
+        let waiting = Waiting { number: s.started, map, settings, on_built: Box::new(on_built) };
+        if s.waiting.replace(waiting).is_some() {
+            s.building -= 1;
+            s.superseded += 1;
+        }
+        if std::mem::replace(&mut s.indexing, true) {
+            return;
+        }
+        drop(s);
         let swap = Arc::clone(self);
-        std::thread::spawn(move || {
+        std::thread::spawn(move || swap.index_waiting());
+    }
+
+    /// The indexing thread: the waiting map, then the one that came meanwhile, until none waits.
+    fn index_waiting(self: Arc<Self>) {
+        loop {
+            let Waiting { number, map, settings, on_built } = {
+                let mut s = self.lock();
+                match s.waiting.take() {
+                    Some(waiting) => waiting,
+                    None => {
+                        s.indexing = false;
+                        return;
+                    }
+                }
+            };
             let started = Instant::now();
             let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                 MapIndex::build(map.points.clone(), &settings)
             }));
+            drop(map);
             let index = built.ok().map(Arc::new);
             if let Some(index) = &index {
                 on_built(index, started.elapsed());
@@ -77,13 +119,14 @@ impl MapSwap {
             // Kept here only for a map searched per voxel, whose trees and cells this thread goes
             // on building.
             let keep = index.as_ref().filter(|i| i.searches_per_voxel()).map(Arc::clone);
-            swap.finished(number, index);
+            self.finished(number, index);
             if let Some(index) = keep {
                 // The frames go on meanwhile; the per-voxel trees and cells their searches would
-                // build are built here instead, until no one else holds the index any more.
-                index.prepare_searches_while(|| Arc::strong_count(&index) > 1);
+                // build are built here instead, until no one else holds the index any more or a
+                // newer map waits.
+                index.prepare_searches_while(|| Arc::strong_count(&index) > 1 && self.lock().waiting.is_none());
             }
-        });
+        }
     }
 
     /// The build of map `number` ended (`None`: it panicked).
@@ -103,6 +146,11 @@ impl MapSwap {
     /// A worker's hand-over point (it has taken nothing yet).
     pub fn taker(self: &Arc<Self>) -> MapTaker {
         MapTaker { swap: Arc::clone(self), taken: 0 }
+    }
+
+    /// Maps superseded by a newer one before they were indexed.
+    pub fn superseded(&self) -> u64 {
+        self.lock().superseded
     }
 
     /// Indexes built so far.
@@ -230,5 +278,36 @@ mod tests {
         assert!(old.upgrade().is_none(), "the old index is dropped when the last worker lets go");
         // A worker that starts late (a fresh localizer) takes the newest.
         assert!(Arc::ptr_eq(&swap.taker().take_ready().expect("the newest"), &new_first));
+    }
+
+    /// A storm of maps (#38) starts one indexing thread, not one a map: the maps that arrive
+    /// while one is indexed wait in a queue of one, each superseding the last, and the newest
+    /// is the one every worker ends on.
+    #[test]
+    fn a_storm_of_maps_is_indexed_one_at_a_time_and_the_newest_wins() {
+        let swap = Arc::new(MapSwap::default());
+        let running = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let most = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let storm = 40;
+        for i in 0..storm {
+            let (running, most) = (Arc::clone(&running), Arc::clone(&most));
+            // Each callback runs on the indexing thread: two at once would be two threads.
+            swap.new_map(map(3000 + i), IndexSettings::default(), move |_, _| {
+                let now = running.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+                most.fetch_max(now, std::sync::atomic::Ordering::SeqCst);
+                std::thread::sleep(std::time::Duration::from_millis(2));
+                running.fetch_sub(1, std::sync::atomic::Ordering::SeqCst);
+            });
+        }
+        let end = Instant::now() + std::time::Duration::from_secs(30);
+        while swap.indexed() + swap.superseded() < storm as u64 {
+            assert!(Instant::now() < end, "the storm was not worked off");
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        assert_eq!(most.load(std::sync::atomic::Ordering::SeqCst), 1, "one index built at a time");
+        assert!(swap.superseded() > 0, "maps waiting behind one being indexed are superseded");
+        let newest = swap.taker().take_ready().expect("an index");
+        assert_eq!(newest.len(), 3000 + storm - 1, "the newest map wins");
+        assert!(!swap.lock().indexing, "the indexing thread ends once no map waits");
     }
 }
