@@ -26,6 +26,21 @@ pub struct Intrinsics {
     pub height: u32,
 }
 
+/// The widest and the narrowest field of view a pinhole camera model is taken to have: a
+/// pinhole images less than 180° (a wider lens needs a fisheye model), and no lens sees less
+/// than a hundredth of a degree. A focal length outside them (fx = 10⁻³⁰ from a broken driver,
+/// #38) is refused where it comes in rather than failing every frame later.
+const MAX_FIELD_OF_VIEW_DEG: f64 = 179.0;
+const MIN_FIELD_OF_VIEW_DEG: f64 = 0.01;
+
+/// Whether `focal_px` over an image side of `side_px` pixels gives a field of view a pinhole can
+/// have ([`MAX_FIELD_OF_VIEW_DEG`], [`MIN_FIELD_OF_VIEW_DEG`]).
+fn plausible_focal(focal_px: f64, side_px: u32) -> bool {
+    let half_side = side_px as f64 / 2.0;
+    let fov_deg = 2.0 * (half_side / focal_px).atan().to_degrees();
+    focal_px > 0.0 && (MIN_FIELD_OF_VIEW_DEG..=MAX_FIELD_OF_VIEW_DEG).contains(&fov_deg)
+}
+
 /// Smallest camera depth that counts as in front of the camera: one visibility rule for PnP's
 /// scoring and refinement and for every projection through [`Intrinsics::project`] (the last
 /// choice's and the significance's support), so they agree on which matches a pose explains.
@@ -62,10 +77,10 @@ impl Intrinsics {
     /// Whether all parameters are finite and usable.
     pub fn is_valid(&self) -> bool {
         [self.fx, self.fy, self.cx, self.cy].iter().all(|v| v.is_finite())
-            && self.fx > 0.0
-            && self.fy > 0.0
             && self.width > 0
             && self.height > 0
+            && plausible_focal(self.fx, self.width)
+            && plausible_focal(self.fy, self.height)
     }
 }
 
@@ -288,6 +303,22 @@ mod tests {
 
     fn k() -> Intrinsics {
         Intrinsics { fx: 525.0, fy: 525.0, cx: 320.0, cy: 240.0, width: 640, height: 480 }
+    }
+
+    /// Intrinsics a pinhole can have are valid; a focal length that makes the view 180° wide or
+    /// wider (fx = 10⁻³⁰ from a broken driver, #38) or a hair's breadth narrow is not.
+    #[test]
+    fn intrinsics_need_a_pinholes_field_of_view() {
+        assert!(k().is_valid());
+        let wide = Intrinsics { fx: 250.0, fy: 190.0, ..k() };
+        assert!(wide.is_valid(), "a 104° wide-angle");
+        let tele = Intrinsics { fx: 60_000.0, fy: 60_000.0, ..k() };
+        assert!(tele.is_valid(), "a 0.6° telephoto");
+        for fx in [1e-30, 0.0, -525.0, 1.0, 1e9, f64::NAN] {
+            assert!(!Intrinsics { fx, ..k() }.is_valid(), "fx {fx}");
+            assert!(!Intrinsics { fy: fx, ..k() }.is_valid(), "fy {fx}");
+        }
+        assert!(!Intrinsics { width: 0, ..k() }.is_valid());
     }
 
     #[test]

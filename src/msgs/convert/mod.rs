@@ -36,7 +36,8 @@ pub fn intrinsics_from_camera_info(info: &CameraInfo) -> Result<Intrinsics, MsgE
         return Err(MsgError::Invalid {
             what: "CameraInfo",
             reason: format!(
-                "need finite fx, fy > 0 and a non-empty image; got fx={} fy={} cx={} cy={} size {}x{}",
+                "need a non-empty image and finite fx, fy giving a pinhole's field of view (0.01–179°); \
+                 got fx={} fy={} cx={} cy={} size {}x{}",
                 k[0], k[4], k[2], k[5], info.width, info.height
             ),
         });
