@@ -464,7 +464,11 @@ fn the_rejected_matches_settle_between_the_verifiers_candidates() {
     }
     let scene = generate(&SynthConfig { frames: 20, seed: 7, ..SynthConfig::preset("extreme+close+harsh").unwrap() });
     let with = last_choice_error(&scene, 11, |_| ());
-    let without = last_choice_error(&scene, 11, |p| p.final_refine.alternatives = 0);
+    // The kept set alone: neither the verifier's next candidates nor the plain search's pose.
+    let without = last_choice_error(&scene, 11, |p| {
+        p.final_refine.alternatives = 0;
+        p.cascade.confirm_nfa = 0.0;
+    });
     assert!(without > 10.0, "the kept set alone: {without}°");
     assert!(with < 3.0, "with the rejected matches: {with}°");
 }
