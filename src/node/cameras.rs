@@ -13,7 +13,7 @@ use ros2_client::{Node, Publisher};
 use super::diagnostics::Stats;
 use super::health::Health;
 use super::ingest::{Ingest, IngestRules, Input, Job, Routed};
-use super::initial_pose::{GateWidth, PoseGate};
+use super::initial_pose::{GateWidth, InitialPose};
 use super::log::{lock, warn};
 use super::map_inbox::MapInbox;
 use super::outputs::{Outputs, Recorder};
@@ -40,7 +40,7 @@ pub struct CameraSetup {
     pub stats: Arc<Mutex<Stats>>,
     pub broadcast: Arc<Mutex<TfBroadcast>>,
     /// The gate set on its `initialpose`, shared by that reader, its `relocalize` and its worker.
-    pub gate: Arc<Mutex<Option<PoseGate>>>,
+    pub gate: Arc<Mutex<Option<InitialPose>>>,
 }
 
 impl CameraSetup {

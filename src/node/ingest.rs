@@ -108,7 +108,16 @@ impl Ingest {
     pub fn on_input(&mut self, input: Input, now: MonotonicNs) {
         match input {
             Input::Part(part) => {
-                lock(&self.stats).health.heard(part.kind().name(), Instant::now());
+                let mut s = lock(&self.stats);
+                s.health.heard(part.kind().name(), Instant::now());
+                if let FramePart::DepthPrior { stamp, depth } = &part {
+                    if !depth.data.iter().any(|v| v.is_finite()) {
+                        // Counted, and the frame goes on without a usable prior (as it would
+                        // with none): #38.
+                        s.error("unusable_prior", format!("frame {stamp}: depth prior: no finite value"));
+                    }
+                }
+                drop(s);
                 let done = self.assembler.push(part, now);
                 self.handle(done);
             }

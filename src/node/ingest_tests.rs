@@ -138,3 +138,20 @@ fn what_the_limits_change_is_counted_by_name() {
     assert_eq!(i.queue.len(), 1, "the frame goes on, trimmed");
     assert_eq!(lock(&i.stats).error_count("correspondences_over_limit"), 1);
 }
+
+/// A depth prior without one finite value is counted (#38) and its frame still goes on, as a
+/// frame without a usable prior.
+#[test]
+fn a_prior_without_a_finite_value_is_counted_and_the_frame_goes_on() {
+    let mut i = ingest(0, 100, false);
+    i.on_input(info(1), 0);
+    i.on_input(corr(1), 0);
+    i.on_input(
+        Input::Part(FramePart::DepthPrior { stamp: 1, depth: DepthImage::new(2, 1, vec![f32::NAN, f32::INFINITY]) }),
+        0,
+    );
+    frame(&mut i, 2, MS);
+    let s = lock(&i.stats);
+    assert_eq!(s.error_count("unusable_prior"), 1);
+    assert_eq!(i.queue.len(), 2, "both frames queued");
+}

@@ -11,6 +11,23 @@
 use crate::msgs::{convert, PoseWithCovarianceStamped};
 pub use crate::pnp::{GateMiss, PoseGate};
 
+/// An accepted `/initialpose`: its gate, and the frame it was given in (empty: none named),
+/// which the frames' map must be in for the gate to apply.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InitialPose {
+    pub frame_id: String,
+    pub gate: PoseGate,
+}
+
+impl InitialPose {
+    /// Whether this initial pose can gate a frame whose map is `map_frame_id`: a pose given in
+    /// another frame (`odom`, a typo, another map) is not a place in this map (#38: one 100 m
+    /// off in an unknown frame made every later frame fail until `~/relocalize`).
+    pub fn applies_to(&self, map_frame_id: &str) -> bool {
+        self.frame_id.is_empty() || map_frame_id.is_empty() || self.frame_id == map_frame_id
+    }
+}
+
 /// How wide the gate is.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GateWidth {
@@ -102,6 +119,20 @@ mod tests {
         // A zero covariance still leaves the minimum gate.
         let tight = gate_from_msg(&msg("", [0.0; 3], 0.0, 0.0), Some("map"), WIDTH).unwrap();
         assert_eq!(tight.radius_m, 0.5);
+    }
+
+    /// An initial pose gates only frames whose map is the frame it was given in (#38); one that
+    /// names no frame, or a frame whose map names none, is taken as the map's.
+    #[test]
+    fn an_initial_pose_applies_only_in_its_own_frame() {
+        let gate = gate_from_msg(&msg("map", [0.0; 3], 0.1, 0.1), None, WIDTH).unwrap();
+        let in_map = InitialPose { frame_id: "map".into(), gate: gate.clone() };
+        assert!(in_map.applies_to("map") && in_map.applies_to(""));
+        assert!(!in_map.applies_to("world"));
+        let unknown = InitialPose { frame_id: "nowhere".into(), gate: gate.clone() };
+        assert!(!unknown.applies_to("map"));
+        let unnamed = InitialPose { frame_id: String::new(), gate };
+        assert!(unnamed.applies_to("map"));
     }
 
     #[test]

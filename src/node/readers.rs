@@ -15,7 +15,7 @@ use tokio::sync::mpsc;
 use super::dds;
 use super::image as img;
 use super::ingest::{Input, Routed};
-use super::initial_pose::{gate_from_msg, GateWidth, PoseGate};
+use super::initial_pose::{gate_from_msg, GateWidth, InitialPose};
 use super::log::{info, lock};
 use super::services;
 use super::tf_buffer::TfHistory;
@@ -204,14 +204,15 @@ pub fn subscribe_initial_pose(
     r: &mut Readers,
     topics: &Topics,
     width: &Arc<Mutex<GateWidth>>,
-    gate: &Arc<Mutex<Option<PoseGate>>>,
+    gate: &Arc<Mutex<Option<InitialPose>>>,
 ) -> Result<()> {
     let (gate, width) = (gate.clone(), width.clone());
     read(r, &topics.initial_pose, &dds::reliable(10), move |m: msgs::PoseWithCovarianceStamped| {
         match gate_from_msg(&m, None, *lock(&width)) {
             Ok(g) => {
                 info(format!("initial pose: gate {:.2} m / {:.1}°", g.radius_m, g.max_angle_rad.to_degrees()));
-                *lock(&gate) = Some(g);
+                let frame_id = m.header.frame_id.trim_start_matches('/').to_owned();
+                *lock(&gate) = Some(InitialPose { frame_id, gate: g });
                 None
             }
             Err(e) => Some(Input::Invalid { reason: "invalid_initialpose", detail: e.to_string() }),
@@ -236,7 +237,7 @@ pub fn spawn_load_map(r: &mut Readers, names: &Names, np: &NodeParams) -> Result
 }
 
 /// `relocalize` of one camera (the service `name`): drops its initial-pose gate.
-pub fn spawn_relocalize(r: &mut Readers, name: &str, gate: &Arc<Mutex<Option<PoseGate>>>) -> Result<()> {
+pub fn spawn_relocalize(r: &mut Readers, name: &str, gate: &Arc<Mutex<Option<InitialPose>>>) -> Result<()> {
     let gate = gate.clone();
     let relocalize = move || {
         let had = lock(&gate).take().is_some();

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 
 use super::diagnostics::Stats;
 use super::ingest::Job;
-use super::initial_pose::PoseGate;
+use super::initial_pose::{InitialPose, PoseGate};
 use super::log::{lock, warn};
 use super::outputs::Outputs;
 use super::queue::DropOldestQueue;
@@ -68,7 +68,7 @@ pub async fn run(
     localizer: Localizer,
     swap: Arc<MapSwap>,
     outputs: Outputs,
-    gate: Arc<Mutex<Option<PoseGate>>>,
+    gate: Arc<Mutex<Option<InitialPose>>>,
 ) {
     let params = localizer.params().clone();
     let mut localizer = Some((localizer, swap.taker()));
@@ -85,7 +85,7 @@ pub async fn run(
             }
         };
         // The `/initialpose` gate steers PnP itself, not only the published pose.
-        current.set_pose_gate(lock(&gate).clone());
+        current.set_pose_gate(gate_for(&gate, &job.frame, &outputs.stats));
         let done = match localize(current, maps, job.frame).await {
             Ok(done) => done,
             Err(e) => {
@@ -119,10 +119,29 @@ fn record_outcome(stats: &Mutex<Stats>, loc: &Localization, latency_ms: f64) {
     }
 }
 
+/// The `/initialpose` gate for `frame`: none without an initial pose, and none (the initial pose
+/// dropped and counted as `invalid_initialpose`) when it was given in a frame other than the
+/// frame's map.
+fn gate_for(initial: &Mutex<Option<InitialPose>>, frame: &Frame, stats: &Mutex<Stats>) -> Option<PoseGate> {
+    let mut guard = lock(initial);
+    let pose = guard.as_ref()?;
+    if pose.applies_to(&frame.map_frame_id) {
+        return Some(pose.gate.clone());
+    }
+    let detail = format!(
+        "frame {}: initial pose in frame {:?}, the map is in {:?}: dropped (global localization)",
+        frame.stamp, pose.frame_id, frame.map_frame_id
+    );
+    warn(&detail);
+    lock(stats).error("invalid_initialpose", detail);
+    *guard = None;
+    None
+}
+
 /// With an `/initialpose` gate set: a pose outside it is withdrawn (counted), one inside moves it.
-fn apply_gate(gate: &Mutex<Option<PoseGate>>, loc: &mut Localization, stats: &Mutex<Stats>) {
+fn apply_gate(gate: &Mutex<Option<InitialPose>>, loc: &mut Localization, stats: &Mutex<Stats>) {
     let mut guard = lock(gate);
-    let (Some(g), Some(pose)) = (guard.as_mut(), loc.pose) else { return };
+    let (Some(InitialPose { gate: g, .. }), Some(pose)) = (guard.as_mut(), loc.pose) else { return };
     match g.check(&pose) {
         Ok(()) => g.follow(&pose),
         Err(miss) => {
