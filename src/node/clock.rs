@@ -53,9 +53,16 @@ impl NodeClock {
         self.use_sim_time.store(use_sim_time, Ordering::Relaxed);
     }
 
-    /// A `/clock` message heard (time may jump back: a replayed bag restarted).
-    pub fn heard(&self, clock: &Clock) {
-        *lock(&self.sim) = Some(clock.clock.to_nanos());
+    /// A `/clock` message heard (time may jump back: a replayed bag restarted); a time before
+    /// 1970 is no time a simulator or a bag gives, and is ignored (#38: −2³¹ s stamped the
+    /// diagnostics in 1901). Whether it was taken.
+    pub fn heard(&self, clock: &Clock) -> bool {
+        let time = clock.clock.to_nanos();
+        if time < 0 {
+            return false;
+        }
+        *lock(&self.sim) = Some(time);
+        true
     }
 
     /// The time now: wall time, or with sim time the `/clock` time, else `newest_input`.
@@ -87,7 +94,11 @@ pub fn subscribe(node: &mut Node, clock: &NodeClock) -> Result<std::thread::Join
                 futures::pin_mut!(stream);
                 while let Some(r) = stream.next().await {
                     match r {
-                        Ok((msg, _)) => clock.heard(&msg),
+                        Ok((msg, _)) => {
+                            if !clock.heard(&msg) {
+                                warn(format!("{CLOCK_TOPIC}: time {} s is before 1970, ignored", msg.clock.sec));
+                            }
+                        }
                         Err(e) => warn(format!("{CLOCK_TOPIC}: unreadable message: {e:?}")),
                     }
                 }
@@ -112,6 +123,8 @@ mod tests {
         assert_eq!(sim.now(Some(7)), Some(42_000_000_123));
         sim.heard(&Clock { clock: Time::from_nanos(3) });
         assert_eq!(sim.now(None), Some(3), "a restarted bag's clock goes back");
+        assert!(!sim.heard(&Clock { clock: Time { sec: i32::MIN, nanosec: 0 } }), "1901 is no time");
+        assert_eq!(sim.now(None), Some(3), "the absurd time is ignored");
         sim.set_use_sim_time(false);
         assert!(sim.now(None).is_some_and(|t| t >= before), "back to wall time");
     }

@@ -150,6 +150,12 @@ impl TfHistory {
                     continue;
                 }
             };
+            if self.path_to_root(parent).contains(&child) {
+                // tf2 refuses it too: a tree has no loop, and one would make `child` its own
+                // ancestor (#38: a → b → a switched the node to publishing map → odom).
+                bad.push(format!("transform {parent} → {child}: {child} is already an ancestor of {parent}, a loop"));
+                continue;
+            }
             if !self.links.contains_key(child) && self.links.len() >= MAX_FRAMES {
                 bad.push(format!("transform {parent} → {child}: over {MAX_FRAMES} frames, left out"));
                 continue;

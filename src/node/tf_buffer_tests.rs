@@ -149,3 +149,19 @@ fn tf_message_carries_the_transform() {
     buf.update(&m, false);
     assert!(close(&buf.lookup("map", "odom", 42).unwrap(), &t));
 }
+
+/// A transform that would close a loop in the tree is refused and named (#38), and the tree
+/// stays as it was: a → b → a once made the node believe in a frame above the map.
+#[test]
+fn a_transform_that_closes_a_loop_is_refused() {
+    let (mut tf, base_camera) = robot();
+    let camera = "camera_color_optical_frame";
+    let before = tf.lookup("base_link", camera, 0).expect("the chain");
+    let bad = tf.update(&tf_message(0, camera, "base_link", &iso([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0)), true);
+    assert_eq!(bad.len(), 1, "{bad:?}");
+    assert!(bad[0].contains("loop"), "{bad:?}");
+    let bad = tf.update(&tf_message(10 * S, "base_link", "odom", &iso([0.0; 3], [0.0, 0.0, 1.0], 0.0)), false);
+    assert!(bad.iter().any(|b| b.contains("loop")), "{bad:?}");
+    assert!(close(&tf.lookup("base_link", camera, 0).expect("the chain, unchanged"), &before));
+    assert!(close(&before, &base_camera));
+}
