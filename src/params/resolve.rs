@@ -35,6 +35,9 @@ pub enum ResolveError {
     NoSection { path: PathBuf, node_name: String },
     #[error("parameters: unknown parameter `{name}`, expected one of {}", expected.join(", "))]
     Unknown { name: String, expected: Vec<String> },
+    /// A parameter an earlier version had, and what became of it.
+    #[error("parameters: `{name}` is no parameter any more: {why}; remove it from the params file")]
+    Retired { name: String, why: &'static str },
     /// A value of the wrong type, as serde words it.
     #[error("parameters: {message}")]
     Rejected { message: String },
@@ -70,6 +73,14 @@ pub fn resolve_cli<S: AsRef<str>>(params_file: Option<&Path>, overrides: &[S]) -
     resolve(&Layers { names: &names, params_file, ros_args: &ros_args })
 }
 
+/// Parameters earlier versions had, and why they went: an old params file that sets one fails
+/// with this reason rather than a bare "unknown parameter".
+const RETIRED: [(&str, &str); 1] = [(
+    "final_refine.ranked_iterations",
+    "the search over every match in the rejector's order went with the two-pass frame path (#34); \
+     the plain search over every match confirms an unsure pose instead",
+)];
+
 /// Every name in `overrides` must name a parameter of `defaults` (down to where the defaults
 /// stop being mappings: below that, the value is the type's to judge).
 fn check_names(prefix: &str, overrides: &Value, defaults: &Value) -> Result<(), ResolveError> {
@@ -80,6 +91,9 @@ fn check_names(prefix: &str, overrides: &Value, defaults: &Value) -> Result<(), 
         match known.get(key) {
             Some(default) => check_names(&full, value, default)?,
             None => {
+                if let Some((_, why)) = RETIRED.iter().find(|(retired, _)| *retired == full) {
+                    return Err(ResolveError::Retired { name: full, why });
+                }
                 let expected = known.keys().filter_map(|k| k.as_str().map(str::to_string)).collect();
                 return Err(ResolveError::Unknown { name: full, expected });
             }
@@ -185,6 +199,16 @@ mod tests {
     use super::*;
     use crate::params::{LocalizerParams, MapQos};
     use crate::pipeline::Method;
+
+    /// An old params file that sets a retired parameter is told why it went (#36).
+    #[test]
+    fn a_retired_parameter_is_named_with_why_it_went() {
+        let e = resolve_cli(None, &["final_refine.ranked_iterations:=150"]).unwrap_err();
+        assert!(matches!(e, ResolveError::Retired { .. }), "{e}");
+        assert!(e.to_string().contains("two-pass frame path"), "{e}");
+        let e = resolve_cli(None, &["final_refine.no_such_thing:=1"]).unwrap_err();
+        assert!(matches!(e, ResolveError::Unknown { .. }), "{e}");
+    }
 
     #[test]
     fn params_merge_files_and_overrides_and_split_node_keys() {
