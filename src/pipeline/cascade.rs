@@ -87,6 +87,11 @@ pub struct FastPathCheck {
     pub pose: Option<nalgebra::Isometry3<f64>>,
 }
 
+impl FastPathCheck {
+    /// What a fast path that found no pose (or could not search the frame) measured.
+    const NO_POSE: Self = Self { inlier_ratio: 0.0, cell_share: 0.0, log10_nfa: f64::INFINITY, pose: None };
+}
+
 impl CascadeParams {
     /// The plain search of `frame` (its first robust pass, not yet started): LO-RANSAC over
     /// every correspondence, PROSAC by the matcher's scores, inlier count, no coverage or
@@ -114,8 +119,7 @@ impl CascadeParams {
         plain: Option<&mut PlainSearch>,
         pnp: &PnpParams,
     ) -> Result<PnpSolution, FastPathCheck> {
-        let unsearchable = FastPathCheck { log10_nfa: f64::INFINITY, ..FastPathCheck::default() };
-        let plain = plain.ok_or(unsearchable)?;
+        let plain = plain.ok_or(FastPathCheck::NO_POSE)?;
         let budget = self.max_iterations.max(1);
         // A short probe first: a frame whose best support after it is under half the bar is
         // hard (a true ratio at the bar is all but certain to show more by then) and goes on
@@ -150,10 +154,7 @@ impl CascadeParams {
         iterations: usize,
     ) -> Result<Result<PnpSolution, FastPathCheck>, FastPathCheck> {
         plain.search.run_until(iterations, self.min_iterations.min(iterations));
-        let solution = plain
-            .search
-            .solution()
-            .map_err(|_| FastPathCheck { log10_nfa: f64::INFINITY, ..FastPathCheck::default() })?;
+        let solution = plain.search.solution().map_err(|_| FastPathCheck::NO_POSE)?;
         let grid = CellGrid::new(&frame.intrinsics, frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64);
         let pixels = frame.correspondences.iter().map(|c| &c.pixel);
         let all = grid.occupied(pixels.clone());
@@ -177,13 +178,6 @@ pub struct PlainSearch {
     search: RansacSearch,
     /// At least this many hypotheses before adaptive stopping, past the fast path (PnP's floor).
     min_iterations: usize,
-}
-
-impl PlainSearch {
-    /// Hypotheses drawn so far.
-    pub fn iterations(&self) -> usize {
-        self.search.iterations()
-    }
 }
 
 /// A frame's correspondences split as PnP takes them, with the matcher's scores PROSAC ranks

@@ -310,13 +310,8 @@ impl Localizer {
                 if last_choice {
                     self.refine_on_all(frame, &mut solution);
                     let fast_path_pose = out.fast_path_check.and_then(|c| c.pose).filter(|_| refine_alternatives > 0);
-                    let fast_path_pose: Vec<_> = fast_path_pose.into_iter().collect();
-                    self.arbitrate_on_all(
-                        frame,
-                        &fast_path_pose,
-                        self.params.final_refine.switch_margin,
-                        &mut solution,
-                    );
+                    let margin = self.params.final_refine.switch_margin;
+                    self.arbitrate_on_all(frame, fast_path_pose.as_slice(), margin, &mut solution);
                     self.confirm_on_all(frame, &mut solution, &mut plain, out);
                 }
                 out.kept = match rejection {
@@ -482,9 +477,9 @@ impl Localizer {
     }
 
     /// The pool's first `final_refine.alternatives` other candidates and `poses` (the fast
-    /// path's unsettled pose, or the plain search's confirming one), each refined on every correspondence as the
-    /// chosen pose was ([`arbiter`]): the best supported of them replaces the chosen pose when
-    /// it covers more than `final_refine.switch_margin` times its cells.
+    /// path's unsettled pose, or the plain search's confirming one), each refined on every
+    /// correspondence as the chosen pose was ([`arbiter`]): the best supported of them replaces
+    /// the chosen pose when it covers more than `margin` times its cells.
     fn arbitrate_on_all(&self, frame: &Frame, poses: &[Isometry3<f64>], margin: f64, solution: &mut PnpSolution) {
         let refine = &self.params.final_refine;
         let pnp = self.pnp_params(frame);
