@@ -403,8 +403,9 @@ fn a_frame_the_rejection_guided_path_leaves_without_a_pose_gets_plain_lo_ransacs
 }
 
 /// An `/initialpose`-like gate reaches every path of the cascade: around the truth the frames
-/// localize as without it; far from it, no pose outside is returned (the fast path, the
-/// rejection-guided PnP and the last resort all search inside the gate only).
+/// localize as without it; far from it, no pose outside is returned (the fast path settles, the
+/// rejection-guided PnP and the last resort publish inside the gate only), and the sure pose the
+/// plain search finds outside contradicts the gate.
 #[test]
 fn a_pose_gate_steers_every_path_of_the_cascade() {
     use angle_i2p::pnp::PoseGate;
@@ -425,6 +426,13 @@ fn a_pose_gate_steers_every_path_of_the_cascade() {
             localizer.set_pose_gate(Some(far.clone()));
             let loc = localizer.process(f);
             assert!(loc.pose.is_none_or(|p| far.check(&p).is_ok()), "{preset}: a pose outside the gate");
+            // The plain search finds the true pose outside it, sure: the gate is contradicted
+            // and nothing inside it is published (#38).
+            assert!(
+                loc.pose.is_none() && matches!(loc.failure, Some(Failure::GateContradicted { .. })),
+                "{preset}: {:?}",
+                loc.failure
+            );
         }
         localizer.set_pose_gate(None);
     }

@@ -5,10 +5,15 @@
 //! (`error.outside_initialpose_gate`). Each accepted pose becomes the gate's centre, so the gate
 //! follows the camera; `~/relocalize` drops it (global localization again).
 //!
-//! The gate acts inside PnP ([`crate::pnp::PoseGate`]: hypotheses outside it are never scored,
-//! so a wrong pose with more support elsewhere cannot win) and again on the result.
+//! The gate acts inside PnP ([`crate::pnp::PoseGate`]: the guided search scores no hypothesis
+//! outside it, so a wrong pose with more support elsewhere cannot win) and again on the result.
+//! It is evidence, not a veto: when a frame's plain search over every match finds a sure pose
+//! outside it, surer than the best inside (the camera jumped, a bag was replayed, the initial
+//! pose was wrong), the frame publishes nothing and the gate is let go, so that the next frames
+//! localize globally instead of staying blind or taking a weak wrong pose inside it (#38).
 
 use crate::msgs::{convert, PoseWithCovarianceStamped};
+use crate::pipeline::{Failure, Localization};
 pub use crate::pnp::{GateMiss, PoseGate};
 
 /// An accepted `/initialpose`: its gate, and the frame it was given in (empty: none named),
@@ -25,6 +30,41 @@ impl InitialPose {
     /// off in an unknown frame made every later frame fail until `~/relocalize`).
     pub fn applies_to(&self, map_frame_id: &str) -> bool {
         self.frame_id.is_empty() || map_frame_id.is_empty() || self.frame_id == map_frame_id
+    }
+}
+
+/// What the gate did with one frame's localization.
+#[derive(Clone, Debug, PartialEq)]
+pub enum GateOutcome {
+    /// No gate, or no pose to check.
+    Ungated,
+    /// The pose is inside; the gate moved to it.
+    Followed,
+    /// The pose is outside and was withdrawn.
+    Withdrawn(GateMiss),
+    /// The frame's evidence contradicts the gate (a sure pose outside it): the gate is gone.
+    Released,
+}
+
+/// Applies the gate in `initial` to `loc`: a pose outside it is withdrawn, one inside moves it,
+/// and a frame that contradicts it ([`Failure::GateContradicted`]) lets it go.
+pub fn apply_gate(initial: &mut Option<InitialPose>, loc: &mut Localization) -> GateOutcome {
+    let Some(InitialPose { gate, .. }) = initial.as_mut() else { return GateOutcome::Ungated };
+    if matches!(loc.failure, Some(Failure::GateContradicted { .. })) {
+        *initial = None;
+        return GateOutcome::Released;
+    }
+    let Some(pose) = loc.pose else { return GateOutcome::Ungated };
+    match gate.check(&pose) {
+        Ok(()) => {
+            gate.follow(&pose);
+            GateOutcome::Followed
+        }
+        Err(miss) => {
+            loc.pose = None;
+            loc.covariance = None;
+            GateOutcome::Withdrawn(miss)
+        }
     }
 }
 

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 
 use super::diagnostics::Stats;
 use super::ingest::Job;
-use super::initial_pose::{InitialPose, PoseGate};
+use super::initial_pose::{self, GateOutcome, InitialPose, PoseGate};
 use super::log::{lock, warn};
 use super::outputs::Outputs;
 use super::queue::DropOldestQueue;
@@ -138,18 +138,20 @@ fn gate_for(initial: &Mutex<Option<InitialPose>>, frame: &Frame, stats: &Mutex<S
     None
 }
 
-/// With an `/initialpose` gate set: a pose outside it is withdrawn (counted), one inside moves it.
+/// With an `/initialpose` gate set: a pose outside it is withdrawn (counted), one inside moves
+/// it, a frame that contradicts it releases it (logged; the frame's failure is counted).
 fn apply_gate(gate: &Mutex<Option<InitialPose>>, loc: &mut Localization, stats: &Mutex<Stats>) {
-    let mut guard = lock(gate);
-    let (Some(InitialPose { gate: g, .. }), Some(pose)) = (guard.as_mut(), loc.pose) else { return };
-    match g.check(&pose) {
-        Ok(()) => g.follow(&pose),
-        Err(miss) => {
+    match initial_pose::apply_gate(&mut lock(gate), loc) {
+        GateOutcome::Ungated | GateOutcome::Followed => {}
+        GateOutcome::Withdrawn(miss) => {
             let detail = format!("frame {}: outside the initial pose gate: {miss}", loc.stamp);
             warn(&detail);
             lock(stats).error("outside_initialpose_gate", detail);
-            loc.pose = None;
-            loc.covariance = None;
         }
+        GateOutcome::Released => warn(format!(
+            "frame {}: the initial pose gate is released (global localization): {}",
+            loc.stamp,
+            loc.failure.as_ref().map_or_else(String::new, ToString::to_string)
+        )),
     }
 }

@@ -95,29 +95,32 @@ impl FastPathCheck {
 impl CascadeParams {
     /// The plain search of `frame` (its first robust pass, not yet started): LO-RANSAC over
     /// every correspondence, PROSAC by the matcher's scores, inlier count, no coverage or
-    /// verification; `pnp` as for the frame's camera and with the seed, poses only inside
-    /// `gate` when there is one. The fast path runs its first stages; confirming or rescuing
-    /// a guided pose goes on with it ([`CascadeParams::search_on`]). `None` when the frame
-    /// cannot be searched at all (too few usable matches, degenerate map points).
-    pub fn plain_search(&self, frame: &Frame, pnp: &PnpParams, gate: Option<&PoseGate>) -> Option<PlainSearch> {
+    /// verification; `pnp` as for the frame's camera and with the seed. It searches every pose,
+    /// a pose gate or not: its poses outside the gate are evidence against it
+    /// ([`super::gate`]). The fast path runs its first stages; confirming or rescuing a guided
+    /// pose goes on with it ([`CascadeParams::search_on`]). `None` when the frame cannot be
+    /// searched at all (too few usable matches, degenerate map points).
+    pub fn plain_search(&self, frame: &Frame, pnp: &PnpParams) -> Option<PlainSearch> {
         let matches = Matches::of(frame);
         // One PROSAC schedule over the matcher's order spans every stage: the fast path draws
         // from the best ranked matches, confirming and the last resort go on growing the pool.
         let budget = self.max_iterations.max(self.last_resort_iterations).max(1);
         let params = PnpParams { max_iterations: budget, coverage_cell_px: 0.0, ..pnp.clone() };
-        let guidance = Guidance { scores: Some(&matches.scores), gate, ..Guidance::default() };
+        let guidance = Guidance { scores: Some(&matches.scores), ..Guidance::default() };
         let problem = Problem { intrinsics: &frame.intrinsics, pixels: &matches.pixels, points: &matches.points };
         let search = RansacSearch::new(&problem, &guidance, &params).ok()?;
         Some(PlainSearch { search, min_iterations: pnp.min_iterations })
     }
 
     /// The fast path: the first stages of `plain` (see [`CascadeParams::plain_search`]), whose
-    /// solution is taken when it settles the frame, else what it measured.
+    /// solution is taken when it settles the frame (and lies inside `gate`, when there is one),
+    /// else what it measured.
     pub fn settle(
         &self,
         frame: &Frame,
         plain: Option<&mut PlainSearch>,
         pnp: &PnpParams,
+        gate: Option<&PoseGate>,
     ) -> Result<PnpSolution, FastPathCheck> {
         let plain = plain.ok_or(FastPathCheck::NO_POSE)?;
         let budget = self.max_iterations.max(1);
@@ -125,14 +128,14 @@ impl CascadeParams {
         // hard (a true ratio at the bar is all but certain to show more by then) and goes on
         // at once; only frames near the bar get the whole budget.
         let probe = self.probe_iterations.clamp(1, budget);
-        let check = match self.stage(frame, plain, pnp, probe)? {
+        let check = match self.stage(frame, plain, pnp, probe, gate)? {
             Ok(solution) => return Ok(solution),
             Err(check) => check,
         };
         if probe == budget || check.inlier_ratio < 0.5 * self.min_inlier_ratio {
             return Err(check);
         }
-        self.stage(frame, plain, pnp, budget)?
+        self.stage(frame, plain, pnp, budget, gate)?
     }
 
     /// `plain` on from where it stopped to the last resort's budget
@@ -145,13 +148,15 @@ impl CascadeParams {
     }
 
     /// One stage of the fast path: the plain search on to `iterations` in all; `Ok(Ok(pose))`
-    /// when its solution settles the frame, `Ok(Err(check))` with what it measured when not.
+    /// when its solution settles the frame, `Ok(Err(check))` with what it measured when not (a
+    /// pose outside `gate` never settles it).
     fn stage(
         &self,
         frame: &Frame,
         plain: &mut PlainSearch,
         pnp: &PnpParams,
         iterations: usize,
+        gate: Option<&PoseGate>,
     ) -> Result<Result<PnpSolution, FastPathCheck>, FastPathCheck> {
         plain.search.run_until(iterations, self.min_iterations.min(iterations));
         let solution = plain.search.solution().map_err(|_| FastPathCheck::NO_POSE)?;
@@ -161,7 +166,8 @@ impl CascadeParams {
         let supported = grid.occupied(pixels.zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p));
         let inlier_ratio = solution.num_inliers as f64 / frame.correspondences.len().max(1) as f64;
         let cell_share = supported as f64 / all.max(1) as f64;
-        if inlier_ratio >= self.min_inlier_ratio && cell_share >= self.min_cell_share {
+        let inside = gate.is_none_or(|g| g.check(&solution.pose).is_ok());
+        if inlier_ratio >= self.min_inlier_ratio && cell_share >= self.min_cell_share && inside {
             return Ok(Ok(solution));
         }
         // Only an unsettled frame reports how sure its best pose is (a settled one is measured

@@ -66,6 +66,11 @@ pub enum Failure {
     #[error("pose not sure enough to publish: log10 NFA {log10_nfa:.1} among every match, prior agreement {}",
         prior_quality.map_or_else(|| "unknown".to_string(), |q| format!("{q:.2}")))]
     Unsure { log10_nfa: f64, prior_quality: Option<f64> },
+    /// The pose gate (`/initialpose`) is contradicted: a pose outside it is sure among every
+    /// match and surer than the best inside it (if any), which is not published ([`super::gate`]).
+    #[error("the pose gate is contradicted: a pose outside it has log10 NFA {outside_log10_nfa:.1} among every match, \
+        the best inside {}", inside_log10_nfa.map_or_else(|| "none".to_string(), |n| format!("{n:.1}")))]
+    GateContradicted { outside_log10_nfa: f64, inside_log10_nfa: Option<f64> },
 }
 
 impl Failure {
@@ -79,6 +84,7 @@ impl Failure {
             Failure::Rejection(_) => "rejection",
             Failure::Pnp(_) => "pnp",
             Failure::Unsure { .. } => "unsure",
+            Failure::GateContradicted { .. } => "gate_contradicted",
         }
     }
 }
@@ -120,6 +126,9 @@ pub struct Localization {
     /// Whether the pose the rejector's order found was not sure enough
     /// ([`super::CascadeParams::confirm_nfa`]) and a plain search over every match checked it.
     pub confirm_search: bool,
+    /// With a pose gate: log₁₀ NFA of the surest pose the plain search found outside it (its
+    /// poses are never published; a sure one contradicts the gate, [`super::gate`]).
+    pub outside_gate_log10_nfa: Option<f64>,
     /// Robust-estimation passes run on the frame (at most two): the plain search over every
     /// match, however many stages it ran (the fast path's, then confirming or rescuing), and
     /// the search guided by the rejector on the kept matches.
@@ -148,6 +157,7 @@ impl Localization {
             last_resort: false,
             log10_nfa: None,
             confirm_search: false,
+            outside_gate_log10_nfa: None,
             robust_passes: 0,
             timings: StageTimings::default(),
             failure: None,

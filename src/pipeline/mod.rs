@@ -17,6 +17,7 @@ use significance::Significance;
 
 mod arbiter;
 mod cascade;
+mod gate;
 mod localization;
 mod params;
 mod refine;
@@ -157,6 +158,7 @@ impl Localizer {
         // A frame the fast path did not settle predicts the next one: it builds its geometry
         // while the fast path runs.
         self.overlap_fast_path = self.fast_path_applies() && !out.fast_path && out.failure.is_none();
+        self.weigh_gate(&mut out);
         self.withhold_unsure(&mut out);
         out.timings.total_ms = ms_since(start);
         out
@@ -235,6 +237,9 @@ impl Localizer {
         let solution = match settled {
             Ok(solution) => solution,
             Err(check) => {
+                if check.pose.is_some_and(|pose| !gate::admits(self.pose_gate.as_ref(), &pose)) {
+                    gate::note_outside(out, check.log10_nfa);
+                }
                 out.fast_path_check = Some(check);
                 return false;
             }
@@ -309,7 +314,9 @@ impl Localizer {
             Ok(mut solution) => {
                 if last_choice {
                     self.refine_on_all(frame, &mut solution);
-                    let fast_path_pose = out.fast_path_check.and_then(|c| c.pose).filter(|_| refine_alternatives > 0);
+                    let fast_path_pose = out.fast_path_check.and_then(|c| c.pose).filter(|pose| {
+                        refine_alternatives > 0 && gate::admits(self.pose_gate.as_ref(), pose)
+                    });
                     let margin = self.params.final_refine.switch_margin;
                     self.arbitrate_on_all(frame, fast_path_pose.as_slice(), margin, &mut solution);
                     self.confirm_on_all(frame, &mut solution, &mut plain, out);
@@ -344,6 +351,10 @@ impl Localizer {
     /// kept set.
     fn last_resort(&self, frame: &Frame, plain: &mut Option<PlainSearch>, out: &mut Localization) -> bool {
         let Some(solution) = self.search_on(frame, plain, out) else { return false };
+        if !gate::admits(self.pose_gate.as_ref(), &solution.pose) {
+            gate::note_outside(out, self.significance(frame, &solution.pose).log10_nfa);
+            return false;
+        }
         out.last_resort = true;
         self.accept_plain(frame, solution, out);
         true
@@ -373,6 +384,10 @@ impl Localizer {
         out.confirm_search = true;
         out.pnp_iterations += confirming.iterations;
         let sure = self.significance(frame, &confirming.pose);
+        if !gate::admits(self.pose_gate.as_ref(), &confirming.pose) {
+            gate::note_outside(out, sure.log10_nfa);
+            return;
+        }
         if sure.below(cascade.confirm_nfa) && sure.log10_nfa < found.log10_nfa {
             self.arbitrate_on_all(frame, &[confirming.pose], 1.0, solution);
         }
@@ -392,7 +407,7 @@ impl Localizer {
     /// The frame's plain search, a new one (counted) where no fast path started it.
     fn start_plain(&self, frame: &Frame, plain: &mut Option<PlainSearch>, out: &mut Localization) {
         if plain.is_none() {
-            *plain = self.params.cascade.plain_search(frame, &self.pnp_params(frame), self.pose_gate.as_ref());
+            *plain = self.params.cascade.plain_search(frame, &self.pnp_params(frame));
             out.robust_passes += usize::from(plain.is_some());
         }
     }
@@ -437,6 +452,16 @@ impl Localizer {
             out.failure = Some(Failure::Unsure { log10_nfa, prior_quality: out.prior_quality });
             out.pose = None;
             out.covariance = None;
+        }
+    }
+
+    /// With a pose gate, a sure pose outside it that outweighs the pose inside ([`gate`]): the
+    /// frame publishes none and says why.
+    fn weigh_gate(&self, out: &mut Localization) {
+        if let Some(failure) = gate::contradiction(out, self.params.cascade.publish_nfa) {
+            out.pose = None;
+            out.covariance = None;
+            out.failure = Some(failure);
         }
     }
 
@@ -555,8 +580,8 @@ fn fast_path_timed(
     gate: Option<&PoseGate>,
 ) -> (Result<PnpSolution, FastPathCheck>, Option<PlainSearch>, f64) {
     let t = Instant::now();
-    let mut plain = cascade.plain_search(frame, pnp, gate);
-    let settled = cascade.settle(frame, plain.as_mut(), pnp);
+    let mut plain = cascade.plain_search(frame, pnp);
+    let settled = cascade.settle(frame, plain.as_mut(), pnp, gate);
     (settled, plain, ms_since(t))
 }
 
