@@ -101,6 +101,10 @@ fn bad_transforms_are_reported_and_a_reparented_frame_starts_anew() {
     assert_eq!(tf.update(&nan, false).len(), 1);
     assert_eq!(tf.update(&tf_message(S, "", "base_link", &Isometry3::identity()), false).len(), 1);
     assert_eq!(tf.update(&tf_message(S, "a", "a", &Isometry3::identity()), false).len(), 1);
+    let long = "x".repeat(MAX_FRAME_ID_BYTES + 1);
+    let bad = tf.update(&tf_message(S, "odom", &long, &Isometry3::identity()), false);
+    assert!(bad.len() == 1 && bad[0].contains("4 and 257 bytes"), "{bad:?}");
+    assert!(!tf.knows(&long));
     tf.update(&tf_message(S, "odom", "base_link", &Isometry3::identity()), false);
     tf.update(&tf_message(2 * S, "map", "base_link", &Isometry3::identity()), false);
     assert!(matches!(tf.lookup("odom", "base_link", 2 * S), Err(TfLookupError::UnknownFrame { .. })));
@@ -164,4 +168,125 @@ fn a_transform_that_closes_a_loop_is_refused() {
     assert!(bad.iter().any(|b| b.contains("loop")), "{bad:?}");
     assert!(close(&tf.lookup("base_link", camera, 0).expect("the chain, unchanged"), &before));
     assert!(close(&before, &base_camera));
+}
+
+/// One message with a transform for each `(parent, child)` at `stamp`.
+fn tf_batch(stamp: Stamp, links: impl IntoIterator<Item = (String, String)>) -> TFMessage {
+    let transforms = links
+        .into_iter()
+        .flat_map(|(parent, child)| tf_message(stamp, &parent, &child, &Isometry3::identity()).transforms)
+        .collect();
+    TFMessage { transforms }
+}
+
+/// Samples and deque capacity over every history, counted (the buffer keeps its own count).
+fn held(tf: &TfHistory) -> (usize, usize) {
+    tf.links.values().fold((0, 0), |(n, cap), l| (n + l.samples.len(), cap + l.samples.capacity()))
+}
+
+/// A /tf flood over more than MAX_FRAMES names, 100 samples each (the #38 storm held ~1.2 GB):
+/// the buffer stays within MAX_TOTAL_SAMPLES, its deques within 4× that (64 MB), every frame
+/// keeps its newest sample, and each message says so in at most one line per kind.
+#[test]
+fn a_flood_over_max_frames_names_stays_within_the_total_budget() {
+    let mut tf = TfHistory::default();
+    let names = || (0..MAX_FRAMES + 100).map(|i| ("odom".to_string(), format!("flood_{i}")));
+    let mut eviction_lines = 0;
+    for k in 0..100 {
+        let report = tf.update(&tf_batch(k * S / 100, names()), false);
+        assert!(report.len() <= 2, "one summary line per kind, not per sample: {} lines", report.len());
+        assert!(report.iter().any(|l| l.contains("100 transforms of new frames")), "{report:?}");
+        eviction_lines += report.iter().filter(|l| l.contains("evicted")).count();
+    }
+    let (samples, capacity) = held(&tf);
+    assert_eq!(samples, tf.samples());
+    assert!(samples <= MAX_TOTAL_SAMPLES, "{samples} samples held");
+    assert!(capacity <= 4 * MAX_TOTAL_SAMPLES + 4 * MAX_FRAMES, "deque capacity {capacity}");
+    assert_eq!(tf.links.len(), MAX_FRAMES);
+    assert_eq!(tf.evicted() as usize, MAX_FRAMES * 100 - samples);
+    assert!((1..=100).contains(&eviction_lines), "{eviction_lines}");
+    // Evicted evenly across the equal histories; the newest sample of each is still there.
+    let lens: Vec<usize> = tf.links.values().map(|l| l.samples.len()).collect();
+    let (min, max) = (lens.iter().min().copied().unwrap_or(0), lens.iter().max().copied().unwrap_or(0));
+    assert!(min >= 1 && max - min <= 1, "{min}..{max}");
+    assert!(tf.lookup("odom", "flood_7", 99 * S / 100).is_ok());
+}
+
+/// Over the budget the longest history loses its oldest samples; the shorter and the static
+/// ones keep theirs, and the eviction is counted and said.
+#[test]
+fn eviction_takes_from_the_longest_history_and_is_reported() {
+    let mut tf = TfHistory::with_budget(100);
+    let ms = S / 1000;
+    for i in 0..60 {
+        assert!(tf.update(&tf_message(i * ms, "odom", "long", &Isometry3::identity()), false).is_empty());
+    }
+    for i in 0..30 {
+        assert!(tf.update(&tf_message(i * ms, "odom", "short", &Isometry3::identity()), false).is_empty());
+    }
+    assert!(tf.update(&tf_message(0, "long", "cam", &Isometry3::identity()), true).is_empty());
+    for i in 30..39 {
+        assert!(tf.update(&tf_message(i * ms, "odom", "short", &Isometry3::identity()), false).is_empty());
+    }
+    assert_eq!((tf.samples(), tf.evicted()), (100, 0), "at the budget, nothing evicted yet");
+    // One more: 101 > 100, down to the low-water mark 94: the 7 oldest of `long` go.
+    let report = tf.update(&tf_message(39 * ms, "odom", "short", &Isometry3::identity()), false);
+    assert_eq!(report.len(), 1, "{report:?}");
+    assert!(report[0].contains("evicted the 7 oldest") && report[0].contains("\"long\""), "{report:?}");
+    assert!(report[0].contains("budget of 100") && report[0].contains("7 evicted since the start"), "{report:?}");
+    assert_eq!((tf.samples(), tf.evicted()), (94, 7));
+    let len = |f: &str| tf.links[f].samples.len();
+    assert_eq!((len("long"), len("short"), len("cam")), (53, 40, 1));
+    assert!(
+        matches!(tf.lookup("odom", "long", 6 * ms), Err(TfLookupError::Extrapolation { oldest, .. }) if oldest == 7 * ms)
+    );
+    assert!(tf.lookup("odom", "cam", 7 * ms).is_ok());
+    assert!(tf.lookup("odom", "short", 0).is_ok());
+}
+
+/// A real robot — 200 moving frames at 100 Hz for 12 s (10 s cached) — fits the budget whole:
+/// nothing evicted, and lookups still interpolate.
+#[test]
+fn a_real_robot_fits_the_budget_and_still_interpolates() {
+    let mut tf = TfHistory::default();
+    let frames = || (0..200).map(|i| ("odom".to_string(), format!("link_{i}")));
+    for k in 0..1200 {
+        let t = k * S / 100;
+        let mut msg = tf_batch(t, frames());
+        // link_0 moves along x at 1 m/s.
+        msg.transforms[0] =
+            tf_message(t, "odom", "link_0", &iso([t as f64 / S as f64, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0))
+                .transforms
+                .remove(0);
+        assert!(tf.update(&msg, false).is_empty());
+    }
+    assert_eq!(tf.evicted(), 0);
+    assert_eq!(tf.samples(), 200 * 1001, "10 s at 100 Hz, both ends");
+    let got = tf.lookup("odom", "link_0", 11 * S + S / 200).expect("between two samples");
+    assert!(close(&got, &iso([11.005, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0)), "{got}");
+    let (robot, _) = robot();
+    assert_eq!((robot.samples(), robot.evicted()), (21 + 2, 0));
+}
+
+/// A 1 kHz burst that then ages out gives its deque's memory back.
+#[test]
+fn a_history_that_ages_out_gives_its_memory_back() {
+    let mut tf = TfHistory::default();
+    for i in 0..MAX_SAMPLES as i64 {
+        tf.update(&tf_message(i * S / 1000, "odom", "base_link", &Isometry3::identity()), false);
+    }
+    assert!(tf.links["base_link"].samples.capacity() >= MAX_SAMPLES);
+    tf.update(&tf_message(30 * S, "odom", "base_link", &Isometry3::identity()), false);
+    let link = &tf.links["base_link"];
+    assert_eq!((link.samples.len(), tf.samples()), (1, 1));
+    assert!(link.samples.capacity() < 16, "capacity {} kept after aging out", link.samples.capacity());
+}
+
+#[test]
+fn the_water_level_cuts_the_longest_first() {
+    assert_eq!(water_level(&[60, 40], 7), 53);
+    assert_eq!(water_level(&[60, 40], 25), 37, "at 40 only 20 go; at 37, 23 + 3");
+    assert_eq!(water_level(&[10, 10, 10], 3), 9);
+    assert_eq!(water_level(&[10, 10, 10], 100), 1, "every history keeps its newest");
+    assert_eq!(water_level(&[], 5), 1);
 }
