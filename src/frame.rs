@@ -61,7 +61,8 @@ pub struct Frame {
 pub enum CameraImage {
     /// As it travels (`sensor_msgs/CompressedImage`: JPEG/PNG bytes), as bags carry it.
     Compressed(EncodedImage),
-    /// Decoded RGB (the live node decodes in its readers, so its worker never does).
+    /// Decoded RGB (the live node converts a raw `sensor_msgs/Image` in its reader; a
+    /// compressed one it keeps compressed until it draws the debug image).
     Raw(image::RgbImage),
 }
 

@@ -11,6 +11,9 @@
 //! * scores outside [0, 1] are clamped into it;
 //! * a CameraInfo, depth prior or ground-truth depth wider or taller than `max_image_side`
 //!   is refused (that part fails with the reason);
+//! * a camera image of the live node (`node.debug_image`) wider or taller than
+//!   `max_image_side`, or of more than `max_image_pixels` pixels, is refused before it is
+//!   decoded (a compressed one by its header);
 //! * a map with more than `max_map_points` finite points keeps an even subsample;
 //!   non-finite map points are dropped;
 //! * a record (or decompressed chunk) over `max_record_bytes` makes the bag an error;
@@ -25,14 +28,22 @@ use crate::frame::{Correspondence, MapCloud};
 /// and its header).
 pub const DEFAULT_MAX_RECORD_BYTES: u64 = 256 << 20;
 
+/// Default `max_image_pixels`: 4096 × 4096.
+pub const DEFAULT_MAX_IMAGE_PIXELS: u64 = 4096 * 4096;
+
 /// The `limits` section of the parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct InputLimits {
     /// Correspondences kept per frame (the best by score).
     pub max_correspondences: usize,
-    /// Largest width or height of a CameraInfo, depth prior or ground-truth depth image.
+    /// Largest width or height of a CameraInfo, depth prior, ground-truth depth or camera image.
     pub max_image_side: u32,
+    /// Most pixels (width × height) of a camera image the node decodes: a square image at
+    /// `max_image_side` alone is 67 M pixels (201 MB as RGB), and 200 KB PNGs of it made the
+    /// node hold 1.9–2.4 GB (#38). The default, 4096 × 4096, is 50 MB as RGB, 2× a 12 MP
+    /// camera's.
+    pub max_image_pixels: u64,
     /// Map points kept (an even subsample beyond it).
     pub max_map_points: usize,
     /// Longest MCAP record or decompressed chunk read from a bag (bytes).
@@ -49,6 +60,7 @@ impl Default for InputLimits {
         Self {
             max_correspondences: 5000,
             max_image_side: 8192,
+            max_image_pixels: DEFAULT_MAX_IMAGE_PIXELS,
             max_map_points: 5_000_000,
             max_record_bytes: DEFAULT_MAX_RECORD_BYTES,
             max_pending_frames: 256,
@@ -214,6 +226,25 @@ pub fn check_image_side(what: &str, width: u32, height: u32, limits: &InputLimit
     Ok(())
 }
 
+/// Checks an image's pixel count (width × height) against `max_image_pixels`; the error says
+/// which limit and the size.
+pub fn check_image_pixels(what: &str, width: u32, height: u32, limits: &InputLimits) -> Result<(), String> {
+    let pixels = u64::from(width) * u64::from(height);
+    if pixels > limits.max_image_pixels {
+        return Err(format!(
+            "{what} of {width}x{height} ({pixels} pixels) exceeds limits.max_image_pixels = {} (refused)",
+            limits.max_image_pixels
+        ));
+    }
+    Ok(())
+}
+
+/// Both [`check_image_side`] and [`check_image_pixels`], for an image about to be decoded.
+pub fn check_image_size(what: &str, width: u32, height: u32, limits: &InputLimits) -> Result<(), String> {
+    check_image_side(what, width, height, limits)?;
+    check_image_pixels(what, width, height, limits)
+}
+
 /// Keeps an even subsample of at most `max_map_points` points (every k-th, by a fixed stride
 /// over the cloud's order); returns how many were left out.
 pub fn limit_map(map: &mut MapCloud, limits: &InputLimits) -> usize {
@@ -298,5 +329,18 @@ mod tests {
         assert!(check_image_side("CameraInfo", 640, 480, &limits).is_ok());
         let err = check_image_side("CameraInfo", 4_000_000_000, 1, &limits).unwrap_err();
         assert!(err.contains("4000000000x1") && err.contains("8192"), "{err}");
+    }
+
+    #[test]
+    fn image_pixel_limit_names_the_limit_and_the_size() {
+        let limits = InputLimits::default();
+        assert!(check_image_size("image", 4096, 4096, &limits).is_ok());
+        let err = check_image_size("image", 8192, 8192, &limits).unwrap_err();
+        assert!(err.contains("limits.max_image_pixels = 16777216") && err.contains("8192x8192"), "{err}");
+        assert!(err.contains("67108864 pixels"), "{err}");
+        let err = check_image_size("image", 8193, 1, &limits).unwrap_err();
+        assert!(err.contains("limits.max_image_side"), "the side is checked first: {err}");
+        let err = check_image_pixels("image", u32::MAX, u32::MAX, &limits).unwrap_err();
+        assert!(err.contains("18446744065119617025 pixels"), "no overflow: {err}");
     }
 }

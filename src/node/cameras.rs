@@ -155,7 +155,8 @@ impl Cameras {
             let localizer =
                 Localizer::new(cx.params.clone()).map_err(|e| anyhow!("method {}: {e}", cx.params.method.name()))?;
             let (broadcast, recorder, stats) = (c.broadcast.clone(), cx.recorder.clone(), c.stats.clone());
-            let outputs = Outputs::create(node, &c.topics, &cx.np, cx.tf.clone(), broadcast, recorder, stats)?;
+            let outputs = Outputs::create(node, &c.topics, &cx.np, cx.tf.clone(), broadcast, recorder, stats)?
+                .with_image_limits(&cx.rules.limits);
             let queue = Arc::new(DropOldestQueue::<Job>::new(cx.np.queue_depth));
             let run = super::worker::run(queue.clone(), localizer, cx.swap.clone(), outputs, c.gate.clone());
             let worker = tokio::spawn(run);

@@ -17,6 +17,7 @@ use super::tf::{FrameTf, TfBroadcast};
 use super::topics::Topics;
 use crate::bag::BagWriter;
 use crate::frame::{Correspondence, Frame};
+use crate::limits::InputLimits;
 use crate::msgs::{self, convert, RosMessage};
 use crate::params::NodeParams;
 use crate::pipeline::Localization;
@@ -63,6 +64,9 @@ pub struct Outputs {
     broadcast: Arc<Mutex<TfBroadcast>>,
     base_pose: Option<Publisher<msgs::PoseStamped>>,
     debug: Option<Publisher<msgs::Image>>,
+    /// What a camera image is decoded within to draw the debug image (`limits.*`, as its
+    /// reader checked it): the defaults until [`Outputs::with_image_limits`].
+    image_limits: InputLimits,
     recorder: Recorder,
     pub stats: Arc<Mutex<Stats>>,
 }
@@ -95,10 +99,17 @@ impl Outputs {
             broadcast,
             base_pose,
             debug,
+            image_limits: InputLimits::default(),
             topics: topics.clone(),
             recorder,
             stats,
         })
+    }
+
+    /// The limits camera images are decoded within for the debug image: the node's `limits`.
+    pub fn with_image_limits(mut self, limits: &InputLimits) -> Self {
+        self.image_limits = limits.clone();
+        self
     }
 
     async fn send<M: RosMessage + Clone + std::fmt::Debug>(&self, p: &Publisher<M>, topic: &str, msg: M) {
@@ -124,7 +135,7 @@ impl Outputs {
         }
         self.send(&self.kept, &topics.output_correspondences, out.kept).await;
         if let Some(debug) = &self.debug {
-            match debug_image(frame, loc) {
+            match debug_image(frame, loc, &self.image_limits) {
                 Ok(img) => self.send(debug, &topics.debug_image, img).await,
                 Err(e) => lock(&self.stats).error("debug_image", format!("frame {}: {e}", loc.stamp)),
             }
@@ -166,10 +177,11 @@ impl Outputs {
 
 /// The camera image (rgb8) with kept correspondences as green and rejected ones as red
 /// 5×5 squares, at the matcher's pixels of the (raw) image: a frame whose pixels were
-/// undistorted for the localizer (`frame.lens`) has them distorted back.
-fn debug_image(frame: &Frame, loc: &Localization) -> Result<msgs::Image> {
+/// undistorted for the localizer (`frame.lens`) has them distorted back. A compressed image is
+/// decoded here, within `limits`.
+fn debug_image(frame: &Frame, loc: &Localization, limits: &InputLimits) -> Result<msgs::Image> {
     let image = frame.image.as_ref().ok_or_else(|| anyhow!("no camera image for this frame"))?;
-    let mut rgb = img::from_encoded(image).map_err(|e| anyhow!(e))?;
+    let mut rgb = img::from_encoded(image, limits).map_err(|e| anyhow!(e))?;
     let in_image = |cs: &[Correspondence]| -> Vec<Correspondence> {
         match &frame.lens {
             Some(lens) => cs.iter().map(|c| Correspondence { pixel: lens.distort_pixel(&c.pixel), ..*c }).collect(),
@@ -215,7 +227,7 @@ mod tests {
             lens: Some(lens),
         };
         let loc = Localization { kept: vec![c], ..Localization::nothing_yet(&frame, Method::AngleI2p) };
-        let msg = debug_image(&frame, &loc).expect("an image");
+        let msg = debug_image(&frame, &loc, &InputLimits::default()).expect("an image");
         let at = |x: f64, y: f64| {
             let i = (y.round() as usize * msg.width as usize + x.round() as usize) * 3;
             [msg.data[i], msg.data[i + 1], msg.data[i + 2]]

@@ -134,35 +134,37 @@ impl ImageSource {
     }
 }
 
-/// A camera image message → the frame's image part, decoded to RGB here in the reader (the
-/// worker never decodes).
+/// A camera image message → the frame's image part (`image`: the message within the limits,
+/// or why not), when `which` source feeds the frames.
 fn image_part(
     source: &ImageSource,
     which: u8,
     topic: &str,
-    header: &msgs::Header,
-    rgb: impl FnOnce() -> Result<image::RgbImage, String>,
+    stamp: Stamp,
+    image: impl FnOnce() -> Result<CameraImage, String>,
 ) -> Option<Input> {
     if !source.accept(which, topic) {
         return None;
     }
-    let stamp = convert::stamp(header);
-    part_or_error(PartKind::Image, stamp, rgb().map(|rgb| FramePart::Image { stamp, image: CameraImage::Raw(rgb) }))
+    part_or_error(PartKind::Image, stamp, image().map(|image| FramePart::Image { stamp, image }))
 }
 
-/// The camera images (`debug_image`): compressed and raw, whichever delivers first.
+/// The camera images (`debug_image`): compressed and raw, whichever delivers first. Each is
+/// held to `limits.max_image_side` and `limits.max_image_pixels` before a pixel is decoded: a
+/// compressed one stays compressed (its header checked; decoded only to draw the debug image),
+/// a raw one is converted to RGB.
 pub fn subscribe_images(r: &mut Readers, topics: &Topics, limits: &InputLimits) -> Result<()> {
     let sensor = dds::sensor_data(10);
     let source = ImageSource::default();
-    let (src, topic, side) = (source.clone(), topics.image.clone(), limits.max_image_side);
+    let (src, topic, l) = (source.clone(), topics.image.clone(), limits.clone());
     read(r, &topics.image, &sensor, move |m: msgs::CompressedImage| {
-        let rgb = || img::rgb_from_compressed_within(&m, side);
-        image_part(&src, ImageSource::COMPRESSED, &topic, &m.header, rgb)
+        let stamp = convert::stamp(&m.header);
+        image_part(&src, ImageSource::COMPRESSED, &topic, stamp, || img::compressed_within(m, &l))
     })?;
-    let (src, topic) = (source, topics.image_raw.clone());
+    let (src, topic, l) = (source, topics.image_raw.clone(), limits.clone());
     read(r, &topics.image_raw, &sensor, move |m: msgs::Image| {
-        let rgb = || img::rgb_from_image_within(&m, side);
-        image_part(&src, ImageSource::RAW, &topic, &m.header, rgb)
+        let rgb = || img::rgb_from_image_within(&m, &l).map(CameraImage::Raw);
+        image_part(&src, ImageSource::RAW, &topic, convert::stamp(&m.header), rgb)
     })
 }
 
@@ -186,7 +188,9 @@ pub fn subscribe_map(r: &mut Readers, topics: &Topics, map_qos: MapQos, limits: 
     Ok(())
 }
 
-/// `/tf` and `/tf_static` into `buffer` (for `map → odom`); bad transforms are counted.
+/// `/tf` and `/tf_static` into `buffer` (for `map → odom`); bad transforms, new frames over
+/// its frame limit and samples evicted over its sample budget are counted (`invalid_transform`)
+/// and logged, one line per message however many transforms it carried.
 pub fn subscribe_tf(r: &mut Readers, topics: &Topics, buffer: &Arc<Mutex<TfHistory>>) -> Result<()> {
     for (topic, qos, is_static) in [(&topics.tf, dds::reliable(100), false), (&topics.tf_static, dds::latched(), true)]
     {

@@ -100,6 +100,7 @@ impl AppParams {
         let l = &self.limits;
         at_least("limits.max_correspondences", l.max_correspondences as u64, 1, "at least 1")?;
         at_least("limits.max_image_side", l.max_image_side as u64, 1, "at least 1")?;
+        at_least("limits.max_image_pixels", l.max_image_pixels, 1, "at least 1")?;
         at_least("limits.max_map_points", l.max_map_points as u64, 1, "at least 1")?;
         at_least("limits.max_record_bytes", l.max_record_bytes, 1024, "at least 1024 bytes")?;
         at_least("limits.max_pending_frames", l.max_pending_frames as u64, 1, "at least 1")?;
@@ -247,6 +248,7 @@ mod tests {
             ("verify.accept", Box::new(|p| p.localizer.verify.accept = 2.0)),
             ("network.neighbours", Box::new(|p| p.localizer.network.graph.neighbours = 0)),
             ("limits.max_correspondences", Box::new(|p| p.limits.max_correspondences = 0)),
+            ("limits.max_image_pixels", Box::new(|p| p.limits.max_image_pixels = 0)),
             ("node.queue_depth", Box::new(|p| p.node.queue_depth = 0)),
             ("node.diagnostics_window_s", Box::new(|p| p.node.diagnostics_window_s = 0.0)),
             ("node.min_rate_hz", Box::new(|p| p.node.min_rate_hz = f64::INFINITY)),

@@ -80,7 +80,9 @@ fn tile<'a>(bag: &BagFrames, scored: &'a ScoredFrame) -> Tile<'a> {
         return blank(scored, "frame not in the input bag".into());
     };
     let decoded = match &frame.image {
-        Some(enc) => from_encoded(enc),
+        // Within the default image limits (4096 × 4096 pixels): a report gets no parameters,
+        // and a tile is 320 pixels wide anyway.
+        Some(enc) => from_encoded(enc, &crate::limits::InputLimits::default()),
         None => Err("the frame has no camera image".to_string()),
     };
     let image = match decoded {
