@@ -36,6 +36,8 @@ pub struct Stats {
     pub map_points: usize,
     /// Maps indexed by the node (one index shared by all its cameras).
     pub maps_indexed: u64,
+    /// Debug images not drawn: a newer frame's came first (`node.debug_image`, drawn newest only).
+    pub debug_images_superseded: u64,
     pub drops: BTreeMap<String, u64>,
     pub errors: BTreeMap<String, u64>,
     /// Transforms and base poses sent, by kind (`map_to_odom`, `map_to_camera`, `republished`,
@@ -67,6 +69,7 @@ impl Default for Stats {
             frames_localized: 0,
             frames_failed: 0,
             maps_received: 0,
+            debug_images_superseded: 0,
             map_points: 0,
             maps_indexed: 0,
             drops: BTreeMap::new(),
@@ -174,6 +177,7 @@ impl Stats {
             ("maps_received", self.maps_received.to_string()),
             ("map_points", self.map_points.to_string()),
             ("maps_indexed", self.maps_indexed.to_string()),
+            ("debug_images_superseded", self.debug_images_superseded.to_string()),
             ("dropped_total", self.drops.values().sum::<u64>().to_string()),
             ("errors_total", self.errors.values().sum::<u64>().to_string()),
             ("last_failure", self.last_failure.clone().unwrap_or_default()),

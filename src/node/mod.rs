@@ -22,6 +22,7 @@
 mod cameras;
 pub mod clock;
 pub mod dds;
+mod debug_image;
 pub mod diagnostics;
 pub mod health;
 pub mod image;

@@ -9,14 +9,14 @@ use anyhow::{anyhow, Result};
 use ros2_client::Publisher;
 
 use super::dds;
+use super::debug_image::DebugImages;
 use super::diagnostics::Stats;
-use super::image as img;
 use super::log::info;
 use super::log::{lock, now_ns, warn};
 use super::tf::{FrameTf, TfBroadcast};
 use super::topics::Topics;
 use crate::bag::BagWriter;
-use crate::frame::{Correspondence, Frame};
+use crate::frame::Frame;
 use crate::limits::InputLimits;
 use crate::msgs::{self, convert, RosMessage};
 use crate::params::NodeParams;
@@ -53,6 +53,13 @@ impl Recorder {
     }
 }
 
+/// The debug image's output: off, its publisher (not started yet), or its drawer.
+enum DebugOutput {
+    Off,
+    Publisher(Publisher<msgs::Image>),
+    Drawer(DebugImages),
+}
+
 /// The worker's publishers (one set per camera; `/tf` is the node's, shared).
 pub struct Outputs {
     topics: Topics,
@@ -63,10 +70,9 @@ pub struct Outputs {
     /// What goes on /tf and the base pose, shared with the periodic `map → odom` re-send.
     broadcast: Arc<Mutex<TfBroadcast>>,
     base_pose: Option<Publisher<msgs::PoseStamped>>,
-    debug: Option<Publisher<msgs::Image>>,
-    /// What a camera image is decoded within to draw the debug image (`limits.*`, as its
-    /// reader checked it): the defaults until [`Outputs::with_image_limits`].
-    image_limits: InputLimits,
+    /// The debug image's drawer (`node.debug_image`); its publisher until
+    /// [`Outputs::with_image_limits`] starts it.
+    debug: DebugOutput,
     recorder: Recorder,
     pub stats: Arc<Mutex<Stats>>,
 }
@@ -89,8 +95,11 @@ impl Outputs {
         } else {
             Some(dds::publisher(node, &topics.base_pose, &out_qos)?)
         };
-        let debug =
-            if np.debug_image { Some(dds::publisher(node, &topics.debug_image, &dds::sensor_data(5))?) } else { None };
+        let debug = match np.debug_image {
+            // Keep last 1: a viewer wants the newest, and each sample held is a whole RGB image.
+            true => DebugOutput::Publisher(dds::publisher(node, &topics.debug_image, &dds::sensor_data(1))?),
+            false => DebugOutput::Off,
+        };
         Ok(Self {
             pose: dds::publisher(node, &topics.pose, &out_qos)?,
             pose_cov: dds::publisher(node, &topics.pose_with_covariance, &out_qos)?,
@@ -99,16 +108,19 @@ impl Outputs {
             broadcast,
             base_pose,
             debug,
-            image_limits: InputLimits::default(),
             topics: topics.clone(),
             recorder,
             stats,
         })
     }
 
-    /// The limits camera images are decoded within for the debug image: the node's `limits`.
+    /// Starts the debug image's drawer (when `node.debug_image` is on), camera images decoded
+    /// within the node's `limits`.
     pub fn with_image_limits(mut self, limits: &InputLimits) -> Self {
-        self.image_limits = limits.clone();
+        if let DebugOutput::Publisher(publisher) = std::mem::replace(&mut self.debug, DebugOutput::Off) {
+            let (topic, recorder, stats) = (self.topics.debug_image.clone(), self.recorder.clone(), self.stats.clone());
+            self.debug = DebugOutput::Drawer(DebugImages::start(publisher, topic, limits.clone(), recorder, stats));
+        }
         self
     }
 
@@ -134,11 +146,8 @@ impl Outputs {
             self.publish_tf(loc, pose).await;
         }
         self.send(&self.kept, &topics.output_correspondences, out.kept).await;
-        if let Some(debug) = &self.debug {
-            match debug_image(frame, loc, &self.image_limits) {
-                Ok(img) => self.send(debug, &topics.debug_image, img).await,
-                Err(e) => lock(&self.stats).error("debug_image", format!("frame {}: {e}", loc.stamp)),
-            }
+        if let DebugOutput::Drawer(debug) = &self.debug {
+            debug.submit(frame, loc);
         }
         // The recording also gets the per-frame status `replay` writes (timings for `eval`).
         self.recorder.write(crate::app::DIAGNOSTICS_TOPIC, &crate::app::localization_diagnostics(loc), &self.stats);
@@ -172,67 +181,5 @@ impl Outputs {
             lock(&self.stats).count_tf("base_pose");
             self.send(publisher, &self.topics.base_pose, msg).await;
         }
-    }
-}
-
-/// The camera image (rgb8) with kept correspondences as green and rejected ones as red
-/// 5×5 squares, at the matcher's pixels of the (raw) image: a frame whose pixels were
-/// undistorted for the localizer (`frame.lens`) has them distorted back. A compressed image is
-/// decoded here, within `limits`.
-fn debug_image(frame: &Frame, loc: &Localization, limits: &InputLimits) -> Result<msgs::Image> {
-    let image = frame.image.as_ref().ok_or_else(|| anyhow!("no camera image for this frame"))?;
-    let mut rgb = img::from_encoded(image, limits).map_err(|e| anyhow!(e))?;
-    let in_image = |cs: &[Correspondence]| -> Vec<Correspondence> {
-        match &frame.lens {
-            Some(lens) => cs.iter().map(|c| Correspondence { pixel: lens.distort_pixel(&c.pixel), ..*c }).collect(),
-            None => cs.to_vec(),
-        }
-    };
-    img::draw_matches(&mut rgb, &in_image(&frame.correspondences), &in_image(&loc.kept));
-    Ok(img::image_msg(loc.stamp, &loc.camera_frame_id, rgb))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::camera::{CameraModel, Distortion};
-    use crate::frame::CameraImage;
-    use crate::geometry::Intrinsics;
-    use crate::pipeline::Method;
-    use nalgebra::{Point2, Point3};
-
-    #[test]
-    fn the_debug_image_draws_undistorted_matches_at_their_raw_pixels() {
-        let raw = Intrinsics { fx: 300.0, fy: 300.0, cx: 160.0, cy: 120.0, width: 320, height: 240 };
-        let lens = CameraModel {
-            raw,
-            distortion: Distortion::PlumbBob([-0.3, 0.1, 0.0, 0.0, 0.0]),
-            projection: [0.0; 12],
-            unsupported_model: None,
-        };
-        // Near a corner, where the lens moves pixels most: the matcher saw (290, 220).
-        let seen = Point2::new(290.0, 220.0);
-        let ideal = lens.undistort_pixel(&seen).expect("inside the lens' range");
-        assert!((ideal - seen).norm() > 10.0, "the test needs a visible displacement");
-        let c = Correspondence { pixel: ideal, point: Point3::origin(), score: 1.0 };
-        let frame = Frame {
-            stamp: 1,
-            camera_frame_id: "cam".into(),
-            map_frame_id: "map".into(),
-            intrinsics: raw,
-            correspondences: vec![c],
-            depth_prior: None,
-            image: Some(CameraImage::Raw(image::RgbImage::new(320, 240))),
-            ground_truth: None,
-            lens: Some(lens),
-        };
-        let loc = Localization { kept: vec![c], ..Localization::nothing_yet(&frame, Method::AngleI2p) };
-        let msg = debug_image(&frame, &loc, &InputLimits::default()).expect("an image");
-        let at = |x: f64, y: f64| {
-            let i = (y.round() as usize * msg.width as usize + x.round() as usize) * 3;
-            [msg.data[i], msg.data[i + 1], msg.data[i + 2]]
-        };
-        assert_eq!(at(seen.x, seen.y), img::KEPT, "drawn where the matcher saw it");
-        assert_eq!(at(ideal.x, ideal.y), [0, 0, 0], "not at the undistorted pixel");
     }
 }

@@ -17,7 +17,7 @@ use angle_i2p::pipeline::LocalizerParams;
 use crate::common::{binary, manifest};
 use crate::netns::{self, mark_done, run_in_netns, wait_bounded, Guard};
 
-const DOMAIN: &str = "23";
+pub(super) const DOMAIN: &str = "23";
 /// The node's `frame_timeout_ms`: how long a frame waits, and a stamp is remembered.
 const FRAME_TIMEOUT_MS: u64 = 1000;
 
@@ -28,21 +28,25 @@ fn live_node_counts_each_bad_message_and_keeps_going() {
 
 /// The test's DDS participant: publishes frame parts as a camera, a depth network and a
 /// matcher would, and hears the node's diagnostics and poses.
-struct Wire {
+pub(super) struct Wire {
     ros: ros2_client::Node,
     _spinner: std::thread::JoinHandle<()>,
     info: ros2_client::Publisher<msgs::CameraInfo>,
     corr: ros2_client::Publisher<msgs::Correspondences>,
     prior: ros2_client::Publisher<msgs::Image>,
     image: ros2_client::Publisher<msgs::CompressedImage>,
-    map: ros2_client::Publisher<msgs::PointCloud2>,
+    pub(super) map: ros2_client::Publisher<msgs::PointCloud2>,
+    /// The map topic from a volatile publisher that queues (a storm of maps, each delivered).
+    pub(super) map_stream: ros2_client::Publisher<msgs::PointCloud2>,
+    pub(super) tf: ros2_client::Publisher<msgs::TFMessage>,
+    pub(super) initialpose: ros2_client::Publisher<msgs::PoseWithCovarianceStamped>,
     diag: ros2_client::Subscription<msgs::DiagnosticArray>,
     pose: ros2_client::Subscription<msgs::PoseStamped>,
     last_diag: Option<msgs::DiagnosticArray>,
 }
 
 impl Wire {
-    fn new(context: &ros2_client::Context) -> Self {
+    pub(super) fn new(context: &ros2_client::Context) -> Self {
         let mut ros = dds::node(context, "/", "bad_input_wire").expect("node");
         let _spinner = dds::spawn_spinner(&mut ros).expect("spinner");
         let t = TopicMap::default();
@@ -53,6 +57,9 @@ impl Wire {
             prior: dds::publisher(&mut ros, &t.depth_prior, &q).expect("pub"),
             image: dds::publisher(&mut ros, &t.image, &q).expect("pub"),
             map: dds::publisher(&mut ros, &t.map, &dds::latched()).expect("pub"),
+            map_stream: dds::publisher(&mut ros, &t.map, &dds::reliable(50)).expect("pub"),
+            tf: dds::publisher(&mut ros, "/tf", &dds::reliable(100)).expect("pub"),
+            initialpose: dds::publisher(&mut ros, "/initialpose", &dds::reliable(10)).expect("pub"),
             diag: dds::subscription(&mut ros, "/diagnostics", &dds::reliable(50)).expect("sub"),
             pose: dds::subscription(&mut ros, &t.pose, &dds::reliable(50)).expect("sub"),
             ros,
@@ -62,7 +69,7 @@ impl Wire {
     }
 
     /// Waits (30 s at most) until the node reads every frame part.
-    fn wait_matched(&self, log: &Path) {
+    pub(super) fn wait_matched(&self, log: &Path) {
         let by = Instant::now() + Duration::from_secs(30);
         loop {
             let counts = [
@@ -81,7 +88,7 @@ impl Wire {
     }
 
     /// A diagnostics counter (0 when absent) once `ok` holds for it, waiting 20 s at most.
-    fn wait_diag(&mut self, key: &str, ok: impl Fn(u64) -> bool, log: &Path) -> u64 {
+    pub(super) fn wait_diag(&mut self, key: &str, ok: impl Fn(u64) -> bool, log: &Path) -> u64 {
         let end = Instant::now() + Duration::from_secs(20);
         loop {
             while let Ok(Some((d, _))) = self.diag.take() {
@@ -96,13 +103,13 @@ impl Wire {
         }
     }
 
-    fn value(&self, key: &str) -> u64 {
+    pub(super) fn value(&self, key: &str) -> u64 {
         let d = self.last_diag.as_ref();
         d.and_then(|d| status_value(d, key)).and_then(|v| v.parse().ok()).unwrap_or(0)
     }
 
     /// Waits for the node's pose of the frame at `stamp`.
-    fn wait_pose(&self, stamp: i64, log: &Path) {
+    pub(super) fn wait_pose(&self, stamp: i64, log: &Path) {
         let end = Instant::now() + Duration::from_secs(20);
         loop {
             if let Ok(Some((p, _))) = self.pose.take() {
@@ -117,16 +124,16 @@ impl Wire {
 }
 
 /// One frame's messages, each of which a row may spoil.
-struct Parts {
+pub(super) struct Parts {
     info: msgs::CameraInfo,
     corr: msgs::Correspondences,
     prior: msgs::Image,
-    image: msgs::CompressedImage,
+    pub(super) image: msgs::CompressedImage,
 }
 
 impl Parts {
     /// The good frame's parts at `stamp`, with a tiny PNG as its camera image.
-    fn of(good: &Frame, stamp: i64) -> Self {
+    pub(super) fn of(good: &Frame, stamp: i64) -> Self {
         let cam = good.camera_frame_id.as_str();
         let prior = good.depth_prior.as_ref().expect("prior in the bag");
         Self {
@@ -141,7 +148,7 @@ impl Parts {
         }
     }
 
-    fn publish(self, wire: &Wire) {
+    pub(super) fn publish(self, wire: &Wire) {
         wire.info.publish(self.info).expect("publish info");
         wire.prior.publish(self.prior).expect("publish prior");
         wire.image.publish(self.image).expect("publish image");
@@ -150,7 +157,7 @@ impl Parts {
 }
 
 /// A `width`×`height` grey PNG.
-fn png(width: u32, height: u32) -> Vec<u8> {
+pub(super) fn png(width: u32, height: u32) -> Vec<u8> {
     let mut out = Vec::new();
     image::GrayImage::from_pixel(width, height, image::Luma([128]))
         .write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)
@@ -171,7 +178,7 @@ fn crc32(bytes: &[u8]) -> u32 {
 }
 
 /// A 1×1 PNG whose header declares `side`×`side` (a few dozen bytes that would decode huge).
-fn png_declaring(side: u32) -> Vec<u8> {
+pub(super) fn png_declaring(side: u32) -> Vec<u8> {
     let mut data = png(1, 1);
     // Signature (8), IHDR length (4), "IHDR" (4), width (4), height (4), 5 more bytes, CRC.
     data[16..20].copy_from_slice(&side.to_be_bytes());
@@ -181,13 +188,13 @@ fn png_declaring(side: u32) -> Vec<u8> {
     data
 }
 
-fn read(log: &Path) -> String {
+pub(super) fn read(log: &Path) -> String {
     std::fs::read_to_string(log).unwrap_or_default()
 }
 
 /// The node with a debug image (so frames take camera images) and at most
 /// `max_correspondences` a frame (small, so the oversized message stays small on the wire).
-fn start_node(log: &Path, max_correspondences: usize) -> Guard {
+pub(super) fn start_node(log: &Path, max_correspondences: usize) -> Guard {
     let file = std::fs::File::create(log).expect("node log");
     let timeout = format!("frame_timeout_ms:={FRAME_TIMEOUT_MS}");
     let limit = format!("limits.max_correspondences:={max_correspondences}");
