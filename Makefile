@@ -75,6 +75,12 @@ ort:
 training-env:
 	bash training/setup.sh
 
+# The model constants (network.* values each model was trained with) into the metadata of the
+# models in models/, weights untouched (training/stamp_models.sh; train.py stamps new ones itself).
+.PHONY: stamp-models
+stamp-models:
+	./training/stamp_models.sh
+
 # Regenerate the synthetic bags shipped in bags/ (deterministic seeds).
 bags: build
 	./scripts/make_bags.sh

@@ -15,6 +15,11 @@ bin=./target/release/angle-i2p
 data=${ANGLE_I2P_DATA:-../shared/data}
 bags=("$@")
 [ ${#bags[@]} -gt 0 ] || bags=("$data/redkitchen-extreme-val" "$data/redkitchen-hard-val")
+# Keypoints by spectral score only, with the shipped network: the ranking is a model constant (the
+# model refuses params that contradict it), so this row runs a copy whose metadata says `spectral`.
+spectral_only=out/ablations/keypoints_spectral_only.onnx
+mkdir -p out/ablations
+python3 training/stamp_metadata.py models/angle_i2p.onnx --out "$spectral_only" --set keypoint_ranking=spectral > /dev/null
 rows=(
   "angle-i2p|--method angle-i2p"
   "rooms-only-model|--method angle-i2p --params-file params/ablations/rooms_only.yaml"
@@ -23,7 +28,7 @@ rows=(
   "no-scale-alignment|--method angle-i2p --params-file params/ablations/no_scale_alignment.yaml"
   "no-matcher-score|--method angle-i2p --params-file params/ablations/no_matcher_score.yaml"
   "confidence-rank-model|--method angle-i2p --params-file params/ablations/confidence_rank.yaml"
-  "keypoints-spectral-only|--method angle-i2p -p network.keypoint_ranking:=spectral"
+  "keypoints-spectral-only|--method angle-i2p -p network.model_path:=$spectral_only"
   "tau-0.1|--method angle-i2p -p network.tau:=0.1"
   "tau-0.4|--method angle-i2p -p network.tau:=0.4"
   "tau-0.5|--method angle-i2p -p network.tau:=0.5"

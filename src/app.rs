@@ -375,15 +375,20 @@ pub struct ExportReport {
 /// with `.npy` arrays — `features` (N×24, eq. 9), `local_index` (V×K), `local_theta` (V×K×K),
 /// `global_index` (M), `global_theta` (M×M), `cross_theta` (N×M), `spectral` (N), `labels` (N:
 /// 1 inlier, 0 outlier, −1 no ground-truth depth; the 5 cm rule of `eval`) and `correspondences`
-/// (N×6: u, v, x, y, z, score).
+/// (N×6: u, v, x, y, z, score). Beside them `model_constants.json`: the `network.*` values the
+/// inputs were built with, which a model trained on them carries in its metadata
+/// ([`crate::reject::model_constants`]; `training/train.py` stamps it).
 pub fn export_samples(input: &Path, out: &Path, params: &AppParams) -> Result<ExportReport> {
     use crate::npy;
     use crate::reject::inputs::{build_inputs, IndexedMap, TensorValues};
+    use crate::reject::model_constants::{write_export_file, EXPORT_FILE};
     use crate::reject::{FrameGeometry, SpectralRejector};
 
     let mut stream = FrameStream::open(input, &params.topics, &params.limits)?.with_pixel_space(params.camera.pixels);
     let map = stream.map.take().map(|m| IndexedMap::new(m.points));
     let core = &params.localizer;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    write_export_file(out, &core.network).with_context(|| format!("writing {}/{EXPORT_FILE}", out.display()))?;
     let mut spectral = SpectralRejector::new(core.network.keypoint_spectral(core.spectral.clone()));
     let mut report = ExportReport { samples: 0, skipped: Vec::new() };
     while let Some(item) = stream.next_frame()? {

@@ -177,6 +177,11 @@ fn export_writes_training_samples_numpy_reads() {
     );
     let text = run_ok(Command::new(binary()).arg("export").arg(&bag).arg("--out").arg(&out));
     assert!(text.starts_with("2 samples"), "{text}");
+    // Beside them, the network.* values they were built with: what a model trained on them carries.
+    let constants = std::fs::read_to_string(out.join("model_constants.json")).expect("model_constants.json");
+    let constants: serde_json::Value = serde_json::from_str(&constants).expect("JSON");
+    assert_eq!((&constants["angle_i2p.format"], &constants["angle_i2p.neighbours"]), (&"1".into(), &"32".into()));
+    assert_eq!(constants["angle_i2p.keypoint_ranking"], "spectral_matcher");
     let Some(py) = python() else {
         return skip_or_fail("no Python with numpy (make py-venv)");
     };

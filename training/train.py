@@ -1,9 +1,15 @@
 """Trains the Angle-I2P rejector on exported samples and writes an ONNX model.
 
     python train.py --train DIR [DIR ...] --val DIR [DIR ...] --out ../models/angle_i2p.onnx
+
+The model carries the `network.*` values its training inputs were built with (its metadata
+`angle_i2p.*`, read and enforced at load): `angle-i2p export` writes them beside the samples
+(`model_constants.json`), and every training directory must agree.
 """
 import argparse
+import glob
 import json
+import os
 import random
 import time
 
@@ -12,6 +18,7 @@ import torch
 
 from dataset import load_dir
 from model import AngleI2PNet
+from stamp_metadata import EXPORT_FILE, load_constants, stamp_file
 
 
 def focal_loss(score, label, gamma=2.0, alpha=0.75):
@@ -49,7 +56,7 @@ def augment_confidence(score, rng, missing=0.25):
       kept as is (half the frames);
       a random monotone remap a * s^g (g in [1/3, 3], a in [0.3, 1]): same order, other scale;
       `missing` for every match (what the runtime feeds for a matcher without confidence:
-      `network.missing_confidence`);
+      `network.missing_confidence`, a model constant: the export's value);
       shuffled among the frame's matches: the same distribution, no information."""
     u = rng.random()
     if u < 0.5:
@@ -99,8 +106,28 @@ def metrics(model, samples, tau):
     return {"precision": tp / max(1, tp + fp), "recall": tp / max(1, tp + fn), "top40_precision": float(np.mean(top))}
 
 
-def export(model, sample, path):
-    """One ONNX file (no external data), dynamic N, V, K, M; opset 18."""
+def training_constants(dirs):
+    """The model constants the samples under `dirs` were exported with (`model_constants.json`,
+    written by `angle-i2p export`): one set for all of them, since one model can carry one."""
+    found = {}
+    for d in dirs:
+        for path in sorted(glob.glob(os.path.join(d, "**", EXPORT_FILE), recursive=True)):
+            found[path] = load_constants(path)
+    if not found:
+        raise SystemExit(f"no {EXPORT_FILE} under {' '.join(dirs)}: export the samples again with a current "
+                         "`angle-i2p export` (it writes the network.* values the inputs were built with)")
+    first_path, first = next(iter(found.items()))
+    for path, constants in found.items():
+        if constants != first:
+            diff = sorted(k for k in set(first) | set(constants) if first.get(k) != constants.get(k))
+            raise SystemExit(f"{path} and {first_path} were exported with other network.* values ({', '.join(diff)}): "
+                             "one model is trained on inputs of one kind")
+    return first
+
+
+def export(model, sample, path, constants):
+    """One ONNX file (no external data), dynamic N, V, K, M; opset 18; the model constants in its
+    metadata (stamp_metadata.py)."""
     torch.save(model.state_dict(), path.replace(".onnx", ".pt"))
     with open(path.replace(".onnx", ".json"), "w") as f:
         json.dump(model.config, f)
@@ -112,6 +139,7 @@ def export(model, sample, path):
         dims["matcher_score"] = {0: n}
     torch.onnx.export(model, args, path, input_names=model.input_names, output_names=["score"], dynamic_shapes=dims,
                       opset_version=18, external_data=False)
+    stamp_file(path, constants)
 
 
 def main():
@@ -141,6 +169,8 @@ def main():
     torch.manual_seed(a.seed); random.seed(a.seed)
     rng = np.random.default_rng(a.seed)
     torch.set_num_threads(a.threads)
+    constants = training_constants(a.train)
+    missing = float(constants["missing_confidence"])
     train = [s for d in a.train for s in load_dir(d)]
     val = {d: load_dir(d) for d in a.val}
     if a.confidence_rank:
@@ -162,7 +192,7 @@ def main():
         for s in train:
             inputs = dict(s)
             if a.augment_confidence and model.use_matcher_score:
-                inputs["matcher_score"] = augment_confidence(s["matcher_score"], rng)
+                inputs["matcher_score"] = augment_confidence(s["matcher_score"], rng, missing)
             if a.confidence_rank and model.use_matcher_score:
                 inputs["matcher_rank"] = confidence_rank(inputs["matcher_score"])
             f = model.embed_correspondences(*[inputs[k] for k in model.input_names])
@@ -174,7 +204,7 @@ def main():
         model.eval()
         report = {d.rstrip("/").split("/")[-1]: metrics(model, v, a.tau) for d, v in val.items()}
         print(f"epoch {epoch}: loss {total / len(train):.4f} ({time.time() - t0:.0f}s) " + json.dumps(report), flush=True)
-        export(model, train[0], a.out)  # every epoch: a usable model at any time
+        export(model, train[0], a.out, constants)  # every epoch: a usable model at any time
         print("wrote", a.out, flush=True)
 
 

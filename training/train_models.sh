@@ -15,6 +15,8 @@
 #   models/ablations/no_matcher_score.onnx      eq. (9) features only, no matcher confidence
 #   models/ablations/d64_blocks3.onnx           a wider, deeper network (size/latency trade-off)
 # The ablations are trained on rooms only, like rooms_only, which they are compared with.
+# Every model carries the network.* values its dataset was exported with (K, M, θ, …) in its ONNX
+# metadata: `angle-i2p export` writes them beside the samples and train.py stamps them.
 # Needs `make training-env` and a release build (`make build`). EPOCHS overrides stage 1's epochs.
 set -euo pipefail
 cd "$(dirname "$0")"

@@ -11,6 +11,7 @@ use super::ros_args::{ArgsError, Names, RosArgs, DEFAULT_NODE_NAME};
 use super::tree::{deep_merge, dotted, undot};
 use super::validate::InvalidParam;
 use super::{AppParams, NodeParams};
+use crate::reject::model_constants::ModelConstant;
 
 /// Where the parameters come from, lowest first (the defaults are below them all).
 #[derive(Clone, Copy, Debug)]
@@ -60,7 +61,9 @@ pub fn resolve(layers: &Layers) -> Result<AppParams, ResolveError> {
     let mut tree = serde_yaml::to_value(AppParams::default()).map_err(rejected)?;
     check_names("", &overrides, &tree)?;
     deep_merge(&mut tree, &overrides);
-    let params: AppParams = serde_yaml::from_value(tree).map_err(rejected)?;
+    let mut params: AppParams = serde_yaml::from_value(tree).map_err(rejected)?;
+    // Which model constants a layer set: those are held against the model's metadata at load.
+    params.localizer.network.given = ModelConstant::given_in(overrides.get("network"));
     params.validate()?;
     Ok(params)
 }

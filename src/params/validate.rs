@@ -3,6 +3,7 @@
 //! instead of failing every frame later (or panicking: `network.neighbours: 0` divides by it).
 
 use super::{AppParams, LocalizerParams};
+use crate::reject::network::NetworkParams;
 
 /// A parameter outside its valid range.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -202,17 +203,25 @@ impl LocalizerParams {
                 range: "0 (every correspondence) or at least 2",
             });
         }
-        real("network.tau", n.tau, Range::Unit)?;
-        real("network.missing_confidence", n.missing_confidence as f64, Range::Unit)?;
-        at_least("network.intra_threads", n.intra_threads as u64, 1, "at least 1")?;
-        at_least("network.neighbours", n.graph.neighbours as u64, 1, "at least 1")?;
-        at_least("network.keypoints", n.graph.keypoints as u64, 1, "at least 1")?;
-        real("network.sigma_d", n.graph.sigma_d, Range::Positive)?;
-        at_least("network.keypoint_iterations", n.keypoint_iterations as u64, 1, "at least 1")?;
+        n.validate()?;
         real("align.shift_range", a.shift_range, Range::NonNegative)?;
         at_least("align.shift_steps", a.shift_steps as u64, 1, "at least 1")?;
         real("align.log_scale_window", a.log_scale_window, Range::Positive)?;
         real("align.min_pair_fraction", a.min_pair_fraction, Range::Unit)
+    }
+}
+
+impl NetworkParams {
+    /// The `network.*` ranges: also what a model's metadata is checked with
+    /// ([`crate::reject::model_constants`]).
+    pub fn validate(&self) -> Result<(), InvalidParam> {
+        real("network.tau", self.tau, Range::Unit)?;
+        real("network.missing_confidence", self.missing_confidence as f64, Range::Unit)?;
+        at_least("network.intra_threads", self.intra_threads as u64, 1, "at least 1")?;
+        at_least("network.neighbours", self.graph.neighbours as u64, 1, "at least 1")?;
+        at_least("network.keypoints", self.graph.keypoints as u64, 1, "at least 1")?;
+        real("network.sigma_d", self.graph.sigma_d, Range::Positive)?;
+        at_least("network.keypoint_iterations", self.keypoint_iterations as u64, 1, "at least 1")
     }
 }
 

@@ -82,11 +82,16 @@ pub struct Localizer {
 impl Localizer {
     /// A localizer for `params.method`; an error when its rejector cannot run (e.g. ONNX Runtime
     /// or the model is missing).
-    pub fn new(params: LocalizerParams) -> Result<Self, SetupError> {
+    pub fn new(mut params: LocalizerParams) -> Result<Self, SetupError> {
         let rejector: Option<Box<dyn Rejector>> = match params.method {
             Method::Ransac => None,
             Method::Consistency => Some(Box::new(SpectralRejector::new(params.spectral.clone()))),
-            Method::AngleI2p => Some(Box::new(NetworkRejector::new(params.network.clone(), params.spectral.clone())?)),
+            Method::AngleI2p => {
+                let network = NetworkRejector::new(params.network.clone(), params.spectral.clone())?;
+                // The model's constants (its prior alignment too, which the geometry step reads).
+                params.network = network.params().clone();
+                Some(Box::new(network))
+            }
         };
         Ok(Self {
             params,

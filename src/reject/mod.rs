@@ -5,6 +5,7 @@
 pub mod features;
 pub mod graph;
 pub mod inputs;
+pub mod model_constants;
 pub mod network;
 pub mod network_params;
 

@@ -6,10 +6,12 @@
 //! `ORT_DYLIB_PATH`, else `.ort/libonnxruntime.so.1.31.1` (`make ort` puts it there).
 
 use std::borrow::Cow;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
 use super::inputs::{build_inputs, build_inputs_into, IndexedMap, InputScratch, NetworkInputs, TensorValues};
+use super::model_constants::{check_graph, ConstantsError, ModelConstants, METADATA_PREFIX};
 pub use super::network_params::{KeypointRanking, NetworkParams};
 use super::{top_k, FrameGeometry, RejectError, Rejection, Rejector, SpectralParams, SpectralRejector};
 use ort::session::builder::GraphOptimizationLevel;
@@ -30,6 +32,13 @@ pub enum NetworkError {
     Runtime { path: String, message: String },
     #[error("model {path}: {message}")]
     Model { path: String, message: String },
+    /// The model's constants (its ONNX metadata) against the parameters and its graph.
+    #[error("model {path}: {source}")]
+    Constants {
+        path: String,
+        #[source]
+        source: ConstantsError,
+    },
 }
 
 /// The process-wide ONNX Runtime environment (ort allows one per process).
@@ -83,6 +92,8 @@ pub struct NetworkRejector {
     scratch: InputScratch,
     /// The model takes the matcher's confidence as within-frame ranks (`matcher_rank`).
     ranks_confidence: bool,
+    /// What the model's metadata says it was trained with.
+    constants: ModelConstants,
 }
 
 impl NetworkRejector {
@@ -103,6 +114,7 @@ impl NetworkRejector {
             .and_then(|b| b.with_optimization_level(GraphOptimizationLevel::Level1).map_err(Into::into))
             .and_then(|mut b| b.commit_from_file(&model_path))
             .map_err(|e| model_err(e.to_string()))?;
+        let (params, constants) = model_params(&session, params, &model_path)?;
         let spectral = SpectralRejector::new(params.keypoint_spectral(spectral));
         let ranks_confidence = session.inputs().iter().any(|i| i.name() == "matcher_rank");
         Ok(Self {
@@ -113,7 +125,18 @@ impl NetworkRejector {
             inputs: NetworkInputs::default(),
             scratch: InputScratch::default(),
             ranks_confidence,
+            constants,
         })
+    }
+
+    /// The parameters it runs with: the model's constants over the ones it was given.
+    pub fn params(&self) -> &NetworkParams {
+        &self.params
+    }
+
+    /// The model constants its metadata carries (none for an older model).
+    pub fn model_constants(&self) -> &ModelConstants {
+        &self.constants
     }
 
     /// The network's inputs for one frame (eq. 9 features, graphs, θ).
@@ -129,6 +152,45 @@ impl NetworkRejector {
     pub fn run(&mut self, inputs: &NetworkInputs) -> Result<Vec<f32>, RejectError> {
         score(&mut self.session, inputs)
     }
+}
+
+/// The parameters the model at `path` runs with: its constants (ONNX metadata, see
+/// [`super::model_constants`]) in place of `params`'s, refused where the params gave another
+/// value or the graph's fixed input dimensions disagree. A model without them keeps `params`'s
+/// values, said in one line.
+fn model_params(
+    session: &Session,
+    params: NetworkParams,
+    path: &Path,
+) -> Result<(NetworkParams, ModelConstants), NetworkError> {
+    let shown = path.display().to_string();
+    let err = |source: ConstantsError| NetworkError::Constants { path: shown.clone(), source };
+    let metadata = stamped_metadata(session)
+        .map_err(|e| NetworkError::Model { path: shown.clone(), message: format!("reading its metadata: {e}") })?;
+    let constants = ModelConstants::read(&metadata).map_err(err)?;
+    let missing = constants.missing();
+    if !missing.is_empty() {
+        let values: Vec<String> =
+            missing.iter().map(|c| format!("network.{} ({})", c.name(), c.text(&params))).collect();
+        let what = if constants.is_empty() { "its model constants (an older model)" } else { "every model constant" };
+        eprintln!("note: model {shown} does not carry {what}: using the parameters' {}", values.join(", "));
+    }
+    let resolved = constants.resolve(&params).map_err(err)?;
+    check_graph(&input_shapes(session), &resolved).map_err(err)?;
+    Ok((resolved, constants))
+}
+
+/// The model's `angle_i2p.*` metadata entries.
+fn stamped_metadata(session: &Session) -> Result<BTreeMap<String, String>, ort::Error> {
+    let metadata = session.metadata()?;
+    let keys = metadata.custom_keys()?.into_iter().filter(|k| k.starts_with(METADATA_PREFIX));
+    Ok(keys.filter_map(|k| metadata.custom(&k).map(|v| (k, v))).collect())
+}
+
+/// Each tensor input's name and shape (-1: a dynamic axis).
+fn input_shapes(session: &Session) -> Vec<(String, Vec<i64>)> {
+    let shape = |i: &ort::value::Outlet| Some((i.name().to_string(), i.dtype().tensor_shape()?.to_vec()));
+    session.inputs().iter().filter_map(shape).collect()
 }
 
 /// Runs `session` on `inputs`: each tensor a view of the inputs' own buffers (no copy).

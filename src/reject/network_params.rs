@@ -1,9 +1,12 @@
 //! The learned rejector's parameters (`network.*`), apart from the network itself so that the
 //! inputs can be built without it.
 
+use std::collections::BTreeSet;
+
 use serde::{Deserialize, Serialize};
 
 use super::graph::GraphParams;
+pub use super::model_constants::ModelConstant;
 use super::SpectralParams;
 use crate::consistency::ScaleShiftParams;
 
@@ -20,9 +23,10 @@ pub struct NetworkParams {
     pub min_keep: usize,
     /// Intra-op threads of the session (1: one core per node instance).
     pub intra_threads: usize,
-    /// K, M, the θ kind and σ_d of the graphs (must match the training export): their keys sit
-    /// directly under `network` (`network.neighbours`, …). Unknown keys are still refused:
-    /// serde checks what no field (flattened or not) took, and `params::resolve` names them first.
+    /// K, M, the θ kind and σ_d of the graphs (model constants, like the fields below up to
+    /// `missing_confidence`: see [`super::model_constants`]): their keys sit directly under
+    /// `network` (`network.neighbours`, …). Unknown keys are still refused: serde checks what no
+    /// field (flattened or not) took, and `params::resolve` names them first.
     #[serde(flatten)]
     pub graph: GraphParams,
     /// Align the prior's scale and shift before building features and graphs (the paper's
@@ -40,6 +44,11 @@ pub struct NetworkParams {
     /// confidence of those matchers (their medians: 0.07–0.29) reads as "unknown". A property
     /// of the model, not of the scene: retraining on other matchers moves it.
     pub missing_confidence: f32,
+    /// The model constants a params layer gave (`params::resolve` records them; code that builds
+    /// these params adds what it means to hold): the model's metadata must agree with these,
+    /// and its values replace the others ([`super::model_constants::ModelConstants::resolve`]).
+    #[serde(skip)]
+    pub given: BTreeSet<ModelConstant>,
 }
 
 /// How the global graph's keypoints are chosen (the paper takes P2-Net's top-M detections).
@@ -71,6 +80,7 @@ impl Default for NetworkParams {
             keypoint_iterations: 4,
             keypoint_ranking: KeypointRanking::default(),
             missing_confidence: 0.25,
+            given: BTreeSet::new(),
         }
     }
 }
