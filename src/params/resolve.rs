@@ -11,7 +11,7 @@ use super::ros_args::{ArgsError, Names, RosArgs, DEFAULT_NODE_NAME};
 use super::tree::{deep_merge, dotted, undot};
 use super::validate::InvalidParam;
 use super::{AppParams, NodeParams};
-use crate::reject::model_constants::ModelConstant;
+use crate::reject::network_params::ModelConstant;
 
 /// Where the parameters come from, lowest first (the defaults are below them all).
 #[derive(Clone, Copy, Debug)]

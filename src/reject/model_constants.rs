@@ -7,12 +7,11 @@
 //! at load its values are the ones used, and a params file that sets one to another value is
 //! refused. A model without them (older ones) runs with the params' values, as before.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::path::Path;
 
-use serde::Serialize;
 
-use super::network_params::NetworkParams;
+use super::network_params::{ModelConstant, NetworkParams};
 
 /// Prefix of the model's metadata keys.
 pub const METADATA_PREFIX: &str = "angle_i2p.";
@@ -24,19 +23,6 @@ pub const FORMAT_VERSION: u32 = 1;
 /// What `angle-i2p export` writes beside the samples: the metadata a model trained on them
 /// carries (`training/train.py` stamps it).
 pub const EXPORT_FILE: &str = "model_constants.json";
-
-/// One `network.*` parameter that is a property of the trained model.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum ModelConstant {
-    Neighbours,
-    Keypoints,
-    Theta,
-    SigmaD,
-    AlignPrior,
-    KeypointIterations,
-    KeypointRanking,
-    MissingConfidence,
-}
 
 /// Why a model's metadata cannot be used with the parameters (the caller adds the model's path).
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -63,78 +49,6 @@ pub enum ConstantsError {
 
 fn known_keys() -> String {
     ModelConstant::ALL.iter().map(|c| format!("{METADATA_PREFIX}{}", c.name())).collect::<Vec<_>>().join(", ")
-}
-
-impl ModelConstant {
-    pub const ALL: [Self; 8] = [
-        Self::Neighbours,
-        Self::Keypoints,
-        Self::Theta,
-        Self::SigmaD,
-        Self::AlignPrior,
-        Self::KeypointIterations,
-        Self::KeypointRanking,
-        Self::MissingConfidence,
-    ];
-
-    /// The key under `network` (and after [`METADATA_PREFIX`] in the metadata).
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Neighbours => "neighbours",
-            Self::Keypoints => "keypoints",
-            Self::Theta => "theta",
-            Self::SigmaD => "sigma_d",
-            Self::AlignPrior => "align_prior",
-            Self::KeypointIterations => "keypoint_iterations",
-            Self::KeypointRanking => "keypoint_ranking",
-            Self::MissingConfidence => "missing_confidence",
-        }
-    }
-
-    fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|c| c.name() == name)
-    }
-
-    /// This constant's value in `params`, as a params file (and the metadata) writes it.
-    pub fn text(self, params: &NetworkParams) -> String {
-        match self {
-            Self::Neighbours => yaml(&params.graph.neighbours),
-            Self::Keypoints => yaml(&params.graph.keypoints),
-            Self::Theta => yaml(&params.graph.theta),
-            Self::SigmaD => yaml(&params.graph.sigma_d),
-            Self::AlignPrior => yaml(&params.align_prior),
-            Self::KeypointIterations => yaml(&params.keypoint_iterations),
-            Self::KeypointRanking => yaml(&params.keypoint_ranking),
-            Self::MissingConfidence => yaml(&params.missing_confidence),
-        }
-    }
-
-    /// Sets this constant in `params` from a metadata value.
-    fn set(self, params: &mut NetworkParams, text: &str) -> Result<(), serde_yaml::Error> {
-        match self {
-            Self::Neighbours => params.graph.neighbours = serde_yaml::from_str(text)?,
-            Self::Keypoints => params.graph.keypoints = serde_yaml::from_str(text)?,
-            Self::Theta => params.graph.theta = serde_yaml::from_str(text)?,
-            Self::SigmaD => params.graph.sigma_d = serde_yaml::from_str(text)?,
-            Self::AlignPrior => params.align_prior = serde_yaml::from_str(text)?,
-            Self::KeypointIterations => params.keypoint_iterations = serde_yaml::from_str(text)?,
-            Self::KeypointRanking => params.keypoint_ranking = serde_yaml::from_str(text)?,
-            Self::MissingConfidence => params.missing_confidence = serde_yaml::from_str(text)?,
-        }
-        Ok(())
-    }
-
-    /// The constants a params layer names under `network` (an override tree of
-    /// [`crate::params::resolve`]): the ones held against the model's.
-    pub fn given_in(network: Option<&serde_yaml::Value>) -> BTreeSet<Self> {
-        let keys = network.and_then(serde_yaml::Value::as_mapping).into_iter().flat_map(|m| m.keys());
-        keys.filter_map(|k| k.as_str().and_then(Self::from_name)).collect()
-    }
-}
-
-/// A scalar as a params file writes it (`32`, `0.2`, `angle`, `true`).
-fn yaml<T: Serialize>(value: &T) -> String {
-    serde_yaml::to_string(value).map(|s| s.trim_end().to_string()).unwrap_or_default()
 }
 
 /// The metadata a model trained with `params` carries: the format and every constant.
