@@ -14,9 +14,11 @@ use super::diagnostics::Stats;
 use super::health::Health;
 use super::ingest::{Ingest, IngestRules, Input, Job, Routed};
 use super::initial_pose::{GateWidth, InitialPose};
+use super::lifecycle::Activity;
 use super::log::{lock, warn};
 use super::map_inbox::MapInbox;
-use super::outputs::{Outputs, Recorder};
+use super::outputs::Outputs;
+use super::recorder::Recorder;
 use super::queue::DropOldestQueue;
 use super::readers::{self, Readers};
 use super::tf::TfBroadcast;
@@ -132,6 +134,8 @@ pub struct WorkerContext {
     pub tf: Option<Arc<Publisher<msgs::TFMessage>>>,
     pub recorder: Recorder,
     pub swap: Arc<MapSwap>,
+    /// Whether the node is active (lifecycle): the workers localize and publish only then.
+    pub active: Activity,
 }
 
 /// A running camera: its ingest (fed by [`Cameras::on_input`]), queue and worker.
@@ -148,21 +152,30 @@ pub struct Cameras {
 }
 
 impl Cameras {
-    /// Starts each camera's publishers, localizer and worker.
+    /// Starts each camera's publishers, localizer and worker. Every camera's localizer (the
+    /// model) and publishers are made before any worker starts, so a failure (a lifecycle
+    /// configure that fails) leaves no worker behind.
     pub fn start(node: &mut Node, setups: &[CameraSetup], cx: &WorkerContext) -> Result<Self> {
-        let mut runs = Vec::with_capacity(setups.len());
+        let mut made = Vec::with_capacity(setups.len());
         for c in setups {
             let localizer =
                 Localizer::new(cx.params.clone()).map_err(|e| anyhow!("method {}: {e}", cx.params.method.name()))?;
             let (broadcast, recorder, stats) = (c.broadcast.clone(), cx.recorder.clone(), c.stats.clone());
             let outputs = Outputs::create(node, &c.topics, &cx.np, cx.tf.clone(), broadcast, recorder, stats)?
                 .with_image_limits(&cx.rules.limits);
-            let queue = Arc::new(DropOldestQueue::<Job>::new(cx.np.queue_depth));
-            let run = super::worker::run(queue.clone(), localizer, cx.swap.clone(), outputs, c.gate.clone());
-            let worker = tokio::spawn(run);
-            let ingest = Ingest::new(cx.rules.clone(), queue.clone(), c.stats.clone());
-            runs.push(CameraRun { ingest, queue, worker });
+            made.push((c, localizer, outputs));
         }
+        let runs = made
+            .into_iter()
+            .map(|(c, localizer, outputs)| {
+                let queue = Arc::new(DropOldestQueue::<Job>::new(cx.np.queue_depth));
+                let (swap, gate, active) = (cx.swap.clone(), c.gate.clone(), cx.active.clone());
+                let run = super::worker::run(queue.clone(), localizer, swap, outputs, gate, active);
+                let worker = tokio::spawn(run);
+                let ingest = Ingest::new(cx.rules.clone(), queue.clone(), c.stats.clone());
+                CameraRun { ingest, queue, worker }
+            })
+            .collect();
         let map = MapInbox::new(cx.swap.clone(), cx.params.verify.index_settings());
         Ok(Self { runs, map })
     }

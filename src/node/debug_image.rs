@@ -13,7 +13,7 @@ use ros2_client::Publisher;
 use super::diagnostics::Stats;
 use super::image as img;
 use super::log::{lock, warn};
-use super::outputs::Recorder;
+use super::recorder::Recorder;
 use crate::camera::CameraModel;
 use crate::frame::{CameraImage, Correspondence, Frame, Stamp};
 use crate::limits::InputLimits;

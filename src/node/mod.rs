@@ -8,8 +8,11 @@
 //!  diagnostics (every diagnostics_period_ms) ◄── Stats ◄──────────────────────────────────────────┘  pose+cov, kept, /tf
 //! ```
 //!
-//! `run` does the node's life in named steps (parameters, publishers, subscriptions, loop,
-//! shutdown); `readers`, `ingest`, `worker` and `outputs` are the rooms it wires, once per
+//! `run` does the node's life in named steps (parameters, the ROS node, the lifecycle, loop,
+//! shutdown). The node is a managed node (`lifecycle`, `managed`: unconfigured → inactive →
+//! active, `node.autostart` configuring and activating it at start); `configured` holds what
+//! configure makes — publishers, subscriptions, each camera's localizer and worker, the map —
+//! and `readers`, `ingest`, `worker` and `outputs` are the rooms it wires, once per
 //! camera (`cameras`: one, or one per `node.cameras` namespace), all on the node's one map
 //! (`map_inbox`) and its one index (`map_index::swap::MapSwap`). Nothing heavy
 //! runs in the DDS receive path: readers only decode and convert (with the conversions bag
@@ -21,6 +24,7 @@
 
 mod cameras;
 pub mod clock;
+mod configured;
 pub mod dds;
 mod debug_image;
 pub mod diagnostics;
@@ -29,12 +33,17 @@ pub mod image;
 mod ingest;
 pub mod initial_pose;
 pub mod install;
+pub mod lifecycle;
+pub mod lifecycle_msgs;
+mod lifecycle_services;
 mod log;
+mod managed;
 pub mod map_file;
 mod map_inbox;
 mod outputs;
 pub mod qos_watch;
 pub mod queue;
+mod recorder;
 mod readers;
 pub mod ros_params;
 mod run;

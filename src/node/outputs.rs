@@ -2,56 +2,24 @@
 //! correspondences, TF, debug image), built from the same conversions `replay` writes
 //! ([`convert::localization_messages`]), and the `--record` bag.
 
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
-use anyhow::{anyhow, Result};
+use anyhow::Result;
 use ros2_client::Publisher;
 
 use super::dds;
 use super::debug_image::DebugImages;
+use super::recorder::Recorder;
 use super::diagnostics::Stats;
 use super::log::info;
-use super::log::{lock, now_ns, warn};
+use super::log::{lock, warn};
 use super::tf::{FrameTf, TfBroadcast};
 use super::topics::Topics;
-use crate::bag::BagWriter;
 use crate::frame::Frame;
 use crate::limits::InputLimits;
 use crate::msgs::{self, convert, RosMessage};
 use crate::params::NodeParams;
 use crate::pipeline::Localization;
-
-/// Writes what the node publishes to a bag (`--record`); write errors are logged and counted,
-/// never fatal.
-#[derive(Clone, Default)]
-pub struct Recorder {
-    writer: Arc<Mutex<Option<BagWriter>>>,
-}
-
-impl Recorder {
-    /// Records to a new bag at `path`.
-    pub fn create(path: &std::path::Path) -> Result<Self> {
-        let w = BagWriter::create(path).map_err(|e| anyhow!("--record {}: {e}", path.display()))?;
-        Ok(Self { writer: Arc::new(Mutex::new(Some(w))) })
-    }
-
-    pub fn write<M: RosMessage>(&self, topic: &str, msg: &M, stats: &Mutex<Stats>) {
-        let mut guard = lock(&self.writer);
-        if let Some(w) = guard.as_mut() {
-            if let Err(e) = w.write(topic, now_ns(), msg) {
-                warn(format!("recording {topic} failed: {e}"));
-                lock(stats).error("record_failed", format!("recording {topic}: {e}"));
-            }
-        }
-    }
-
-    /// Closes the bag; `None` when not recording.
-    pub fn finish(&self) -> Option<Result<PathBuf>> {
-        let w = lock(&self.writer).take()?;
-        Some(w.finish().map_err(Into::into))
-    }
-}
 
 /// The debug image's output: off, its publisher (not started yet), or its drawer.
 enum DebugOutput {

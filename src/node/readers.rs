@@ -8,6 +8,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
 use anyhow::{Context as _, Result};
+use futures::future::Either;
 use futures::StreamExt;
 use ros2_client::{Node, Subscription};
 use tokio::sync::mpsc;
@@ -27,8 +28,8 @@ use crate::params::{MapQos, Names, NodeParams};
 
 /// Spawns a reader thread that drains `sub`, converting each message with `convert` (`None`:
 /// nothing for the ingest task). (ros2-client's sample streams are not `Send`, so each reader
-/// gets its own small thread; it only decodes and converts, and ends when the ingest side is
-/// gone.)
+/// gets its own small thread; it only decodes and converts, and ends as soon as the ingest side
+/// is gone — a lifecycle cleanup — dropping its subscription.)
 fn spawn_reader<M, F>(sub: Subscription<M>, topic: String, to: Route, convert: F) -> Result<JoinHandle<()>>
 where
     M: RosMessage + Send + 'static,
@@ -40,7 +41,13 @@ where
             futures::executor::block_on(async move {
                 let stream = sub.async_stream();
                 futures::pin_mut!(stream);
-                while let Some(r) = stream.next().await {
+                let gone = to.tx.closed();
+                futures::pin_mut!(gone);
+                loop {
+                    let r = match futures::future::select(stream.next(), &mut gone).await {
+                        Either::Left((Some(r), _)) => r,
+                        Either::Left((None, _)) | Either::Right(_) => break,
+                    };
                     let input = match r {
                         Ok((msg, _info)) => convert(msg),
                         Err(e) => Some(Input::ReadError { topic: topic.clone(), reason: format!("{e:?}") }),
@@ -236,8 +243,16 @@ pub fn spawn_load_map(r: &mut Readers, names: &Names, np: &NodeParams) -> Result
         }
         response
     };
-    r.threads.push(services::spawn_trigger(r.node, &names.resolve("~/load_map"), load_map, info)?);
+    let stop = until_ingest_gone(&r.tx);
+    r.threads.push(services::spawn_trigger(r.node, &names.resolve("~/load_map"), load_map, info, stop)?);
     Ok(())
+}
+
+/// Completes when the ingest side is gone (the node cleans up or stops): what a service of the
+/// configured node serves until.
+fn until_ingest_gone(tx: &mpsc::Sender<Routed>) -> impl std::future::Future<Output = ()> + Send + 'static {
+    let tx = tx.clone();
+    async move { tx.closed().await }
 }
 
 /// `relocalize` of one camera (the service `name`): drops its initial-pose gate.
@@ -248,6 +263,6 @@ pub fn spawn_relocalize(r: &mut Readers, name: &str, gate: &Arc<Mutex<Option<Ini
         let message = if had { "initial pose dropped: localizing globally" } else { "no initial pose was set" };
         services::TriggerResponse { success: true, message: message.into() }
     };
-    r.threads.push(services::spawn_trigger(r.node, name, relocalize, info)?);
+    r.threads.push(services::spawn_trigger(r.node, name, relocalize, info, until_ingest_gone(&r.tx))?);
     Ok(())
 }

@@ -1,14 +1,17 @@
-//! The node's services (std_srvs/Trigger): `~/load_map` reads `node.map_path` again and hands
-//! the map to the node, answering how many points it loaded or why it could not;
-//! `~/relocalize` drops the `/initialpose` gate ([`super::initial_pose`]).
+//! The node's services: the std_srvs/Trigger ones (`~/load_map` reads `node.map_path` again and
+//! hands the map to the node, answering how many points it loaded or why it could not;
+//! `~/relocalize` drops the `/initialpose` gate, [`super::initial_pose`]) and the server thread
+//! every service runs on (the lifecycle's too, [`super::lifecycle_services`]).
 //!
 //! Services use ros2-client's `Enhanced` request/reply mapping (the one of rmw_fastrtps, ROS 2's
 //! default middleware; rmw_cyclonedds uses another mapping that ros2-client supports only on one
 //! host, so a `ros2 service call` through Cyclone DDS may not reach the node).
 
+use std::future::Future;
 use std::path::PathBuf;
 
 use anyhow::{anyhow, Result};
+use futures::future::Either;
 use ros2_client::{Message, Node, ServiceMapping, ServiceTypeName};
 use serde::{Deserialize, Serialize};
 
@@ -59,39 +62,60 @@ pub fn load_map_answer(map_path: &str, frame_id: &str) -> (TriggerResponse, Opti
 }
 
 /// Serves the std_srvs/Trigger `service` (e.g. `/cam0/angle_i2p/load_map`) on its own thread,
-/// answering each request with `handle`'s response.
+/// answering each request with `handle`'s response (logged), until `stop` completes.
 pub fn spawn_trigger(
     node: &mut Node,
     service: &str,
     mut handle: impl FnMut() -> TriggerResponse + Send + 'static,
     log: fn(String),
+    stop: impl Future<Output = ()> + Send + 'static,
 ) -> Result<std::thread::JoinHandle<()>> {
+    let name = service.to_string();
+    let answer = move |_: TriggerRequest| {
+        let response = handle();
+        log(format!("{name}: {}", response.message));
+        response
+    };
+    spawn_server(node, service, &trigger_type(), answer, log, stop)
+}
+
+/// Serves `service` of type `type_name` on its own thread, answering each request with
+/// `handle`'s response, until `stop` completes (then the server is dropped, and with it its
+/// DDS reader and writer: a node that cleans up serves nothing twice when configured again).
+pub fn spawn_server<Q, A>(
+    node: &mut Node,
+    service: &str,
+    type_name: &ServiceTypeName,
+    mut handle: impl FnMut(Q) -> A + Send + 'static,
+    log: fn(String),
+    stop: impl Future<Output = ()> + Send + 'static,
+) -> Result<std::thread::JoinHandle<()>>
+where
+    Q: Message + Clone + Send + 'static,
+    A: Message + Send + 'static,
+{
     let qos = dds::reliable(10);
     let server = node
-        .create_server::<TriggerRequest, TriggerResponse>(
-            SERVICE_MAPPING,
-            &dds::topic_name(service)?,
-            &trigger_type(),
-            qos.clone(),
-            qos,
-        )
+        .create_server::<Q, A>(SERVICE_MAPPING, &dds::topic_name(service)?, type_name, qos.clone(), qos)
         .map_err(|e| anyhow!("cannot create service {service}: {e:?}"))?;
     let name = service.to_string();
     std::thread::Builder::new()
         .name(format!("service {name}"))
         .spawn(move || {
             futures::executor::block_on(async move {
+                futures::pin_mut!(stop);
                 loop {
-                    let (id, _request) = match server.async_receive_request().await {
-                        Ok(r) => r,
-                        Err(e) => {
+                    let next = server.async_receive_request();
+                    futures::pin_mut!(next);
+                    let (id, request) = match futures::future::select(next, &mut stop).await {
+                        Either::Left((Ok(r), _)) => r,
+                        Either::Left((Err(e), _)) => {
                             log(format!("{name}: unreadable request: {e:?}"));
                             continue;
                         }
+                        Either::Right(_) => break,
                     };
-                    let response = handle();
-                    log(format!("{name}: {}", response.message));
-                    if let Err(e) = server.async_send_response(id, response).await {
+                    if let Err(e) = server.async_send_response(id, handle(request)).await {
                         log(format!("{name}: response not sent: {e:?}"));
                     }
                 }

@@ -12,7 +12,7 @@ use super::cameras::CameraSetup;
 use super::clock::NodeClock;
 use super::initial_pose::GateWidth;
 use super::log::{info, lock};
-use super::outputs::Recorder;
+use super::recorder::Recorder;
 use super::tf_buffer::TfHistory;
 use super::topics::Topics;
 use crate::frame::PartKind;

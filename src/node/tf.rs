@@ -180,6 +180,12 @@ impl TfBroadcast {
         lock(&self.buffer).set_slack(tolerance_ns);
     }
 
+    /// Forgets the last `map → odom` (a lifecycle cleanup: a node configured again re-sends
+    /// nothing from before, only what its next localized frame gives).
+    pub fn forget_map_odom(&mut self) {
+        self.last_map_odom = None;
+    }
+
     /// The mode in effect (`map_to_camera` when `odom_frame` is empty).
     pub fn mode(&self) -> TfMode {
         self.mode

@@ -1,14 +1,15 @@
 //! The worker (one per camera): takes frames from its queue, runs its localizer on tokio's
 //! blocking pool and, within it, on one of rayon's threads (one frame at a time; a panic
 //! becomes a counted failure and a fresh localizer), applies the `/initialpose` gate and
-//! publishes. A new map index is taken from the node's shared
-//! [`MapSwap`] between two frames.
+//! publishes, while the node is active (lifecycle). A new map index is taken from the node's
+//! shared [`MapSwap`] between two frames.
 
 use std::sync::{Arc, Mutex};
 
 use super::diagnostics::Stats;
 use super::ingest::Job;
 use super::initial_pose::{self, GateOutcome, InitialPose, PoseGate};
+use super::lifecycle::Activity;
 use super::log::{lock, warn};
 use super::outputs::Outputs;
 use super::queue::DropOldestQueue;
@@ -62,17 +63,33 @@ fn fresh_localizer(params: &LocalizerParams, swap: &Arc<MapSwap>) -> Result<(Loc
     Ok((Localizer::new(params.clone())?, swap.taker()))
 }
 
-/// Localizes and publishes every queued frame until the queue is closed.
+/// Drops a frame the node may not localize or publish now (it is not active: the lifecycle's
+/// inactive state), counted as `inactive`; true when dropped.
+fn dropped_inactive(active: &Activity, stamp: Stamp, stats: &Mutex<Stats>) -> bool {
+    if active.is_active() {
+        return false;
+    }
+    lock(stats).drop_frame("inactive", format!("frame {stamp}: dropped, the node is not active"));
+    true
+}
+
+/// Localizes and publishes every queued frame until the queue is closed; while the node is not
+/// `active`, frames are dropped before they are localized, and a frame localized when the node
+/// was deactivated is dropped instead of published.
 pub async fn run(
     queue: Arc<DropOldestQueue<Job>>,
     localizer: Localizer,
     swap: Arc<MapSwap>,
     outputs: Outputs,
     gate: Arc<Mutex<Option<InitialPose>>>,
+    active: Activity,
 ) {
     let params = localizer.params().clone();
     let mut localizer = Some((localizer, swap.taker()));
     while let Some(job) = queue.pop().await {
+        if dropped_inactive(&active, job.frame.stamp, &outputs.stats) {
+            continue;
+        }
         let (mut current, maps) = match localizer.take().map_or_else(|| fresh_localizer(&params, &swap), Ok) {
             Ok(current) => current,
             Err(e) => {
@@ -98,6 +115,9 @@ pub async fn run(
         };
         let Localized { localizer: back, maps, frame, localization: mut loc } = done;
         localizer = Some((back, maps));
+        if dropped_inactive(&active, frame.stamp, &outputs.stats) {
+            continue;
+        }
         apply_gate(&gate, &mut loc, &outputs.stats);
         outputs.publish(&loc, &frame).await;
         record_outcome(&outputs.stats, &loc, job.handed_out.elapsed().as_secs_f64() * 1e3);

@@ -9,6 +9,10 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct NodeParams {
+    /// The node configures and activates itself at start (ROS 2 lifecycle), as an unmanaged
+    /// node would; false: it starts unconfigured and waits for a lifecycle manager (nav2's
+    /// `lifecycle_manager`, `ros2 lifecycle set`) on `~/change_state`.
+    pub autostart: bool,
     /// Frames waiting for the worker; when full, the OLDEST waiting frame is dropped.
     pub queue_depth: usize,
     /// A frame whose parts have not all arrived this long after its first part is handed
@@ -134,6 +138,7 @@ pub enum MapQos {
 impl Default for NodeParams {
     fn default() -> Self {
         Self {
+            autostart: true,
             queue_depth: 2,
             frame_timeout_ms: 500,
             stamp_tolerance_ns: 0,
