@@ -85,7 +85,7 @@ fn colcon_builds_and_installs_the_rust_package() {
     let share = prefix.join("share/angle_i2p");
     let lib = prefix.join("lib/angle_i2p");
     assert!(prefix.join("share/ament_index/resource_index/packages/angle_i2p").exists(), "not in the ament index");
-    for f in ["package.xml", "params/angle_i2p.yaml", "models/angle_i2p.onnx"] {
+    for f in ["package.xml", "params/angle_i2p.yaml", "params/expert.yaml", "models/angle_i2p.onnx"] {
         assert!(share.join(f).exists(), "share/angle_i2p/{f} not installed");
     }
     let params = run_ok(Command::new(lib.join("angle-i2p")).args(["params"]).current_dir(ws));

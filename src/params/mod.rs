@@ -1,7 +1,8 @@
 //! Every parameter of angle-i2p. The core's ([`LocalizerParams`]: what [`crate::pipeline::Localizer`]
 //! needs) and the edges' ([`AppParams`]: topics, the live node, input limits) are separate types,
 //! so that the core depends on no edge; in a params file they sit side by side under
-//! `ros__parameters` (`params/angle_i2p.yaml`), as they always did. [`resolve`] layers the
+//! `ros__parameters` (`params/angle_i2p.yaml`, the parameters a deployment sets; `params/expert.yaml`,
+//! every parameter), as they always did. [`resolve`] layers the
 //! sources: defaults < params file < `--ros-args` params files < `-p name:=value`.
 
 mod node;
@@ -56,35 +57,52 @@ mod tests {
 
     use super::*;
 
-    fn shipped_params_file() -> std::path::PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("params/angle_i2p.yaml")
+    /// The user's file (the parameters a deployment sets) and the reference of every parameter.
+    const USER_FILE: &str = "params/angle_i2p.yaml";
+    const EXPERT_FILE: &str = "params/expert.yaml";
+    /// The most keys the user's file may hold (#36: a user needs about twenty).
+    const MAX_USER_KEYS: usize = 25;
+
+    fn shipped(file: &str) -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(file)
     }
 
     fn resolve_file(path: &Path) -> Result<AppParams, ResolveError> {
         resolve_cli::<&str>(Some(path), &[])
     }
 
-    #[test]
-    fn shipped_params_file_matches_the_defaults() {
-        let from_file = resolve_file(&shipped_params_file()).unwrap();
-        let defaults = AppParams::default();
-        assert_eq!(serde_yaml::to_string(&from_file).unwrap(), serde_yaml::to_string(&defaults).unwrap());
+    /// The leaf keys of a shipped params file.
+    fn keys_of(file: &str) -> Vec<String> {
+        let text = std::fs::read_to_string(shipped(file)).unwrap();
+        let doc: serde_yaml::Value = serde_yaml::from_str(&text).unwrap();
+        tree::leaf_keys(&tree::undot(&doc["angle_i2p"]["ros__parameters"]))
     }
 
-    /// The shipped file claims to list every parameter: every default key is in it, and every
-    /// key in it is a parameter.
+    /// Both shipped files hold the defaults: loading either changes nothing.
     #[test]
-    fn shipped_params_file_lists_exactly_the_parameters() {
-        let text = std::fs::read_to_string(shipped_params_file()).unwrap();
-        let doc: serde_yaml::Value = serde_yaml::from_str(&text).unwrap();
-        let section = tree::undot(&doc["angle_i2p"]["ros__parameters"]);
-        let in_file = tree::leaf_keys(&section);
+    fn shipped_params_files_match_the_defaults() {
+        let defaults = serde_yaml::to_string(&AppParams::default()).unwrap();
+        for file in [USER_FILE, EXPERT_FILE] {
+            let from_file = resolve_file(&shipped(file)).unwrap();
+            assert_eq!(serde_yaml::to_string(&from_file).unwrap(), defaults, "{file}");
+        }
+    }
+
+    /// The reference file lists every parameter and only parameters; the user's file holds at
+    /// most [`MAX_USER_KEYS`] of them.
+    #[test]
+    fn shipped_params_files_list_the_parameters() {
         let defaults = tree::leaf_keys(&serde_yaml::to_value(AppParams::default()).unwrap());
-        let missing: Vec<&String> = defaults.iter().filter(|k| !in_file.contains(k)).collect();
-        let unknown: Vec<&String> = in_file.iter().filter(|k| !defaults.contains(k)).collect();
-        assert!(missing.is_empty(), "parameters missing from params/angle_i2p.yaml: {missing:?}");
-        assert!(unknown.is_empty(), "keys in params/angle_i2p.yaml that are no parameter: {unknown:?}");
+        let all = keys_of(EXPERT_FILE);
+        let missing: Vec<&String> = defaults.iter().filter(|k| !all.contains(k)).collect();
+        let unknown: Vec<&String> = all.iter().filter(|k| !defaults.contains(k)).collect();
+        assert!(missing.is_empty(), "parameters missing from {EXPERT_FILE}: {missing:?}");
+        assert!(unknown.is_empty(), "keys in {EXPERT_FILE} that are no parameter: {unknown:?}");
         assert!(defaults.len() > 100 && defaults.contains(&"pnp.prior_tolerance".to_string()), "{defaults:?}");
+        let user = keys_of(USER_FILE);
+        assert!(user.len() <= MAX_USER_KEYS, "{} keys in {USER_FILE}: {user:?}", user.len());
+        let unknown: Vec<&String> = user.iter().filter(|k| !defaults.contains(k)).collect();
+        assert!(unknown.is_empty(), "keys in {USER_FILE} that are no parameter: {unknown:?}");
     }
 
     #[test]
