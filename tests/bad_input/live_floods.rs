@@ -6,15 +6,12 @@
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use angle_i2p::bag::{read_frames, TopicMap};
 use angle_i2p::frame::{Frame, MapCloud};
 use angle_i2p::msgs::{self, convert};
 use angle_i2p::node::dds;
-use angle_i2p::pipeline::{Localizer, LocalizerParams};
 use nalgebra::{Isometry3, Matrix6};
 
-use super::live_node::{png, png_declaring, read, start_node, Parts, Wire, DOMAIN};
-use crate::common::manifest;
+use super::live_node::{map_and_good_frame, png, png_declaring, read, start_node, Parts, Wire, DOMAIN};
 use crate::netns::{self, mark_done, run_in_netns, wait_bounded};
 
 /// Peak resident memory the node may reach through every flood below (#38's bound).
@@ -67,11 +64,7 @@ fn tf_message(first: usize, n: usize, stamp: i64) -> msgs::TFMessage {
 #[ignore = "runs inside a network namespace, via live_node_stays_bounded_and_responsive_under_floods"]
 fn inner_live_node_floods() {
     netns::enter_netns("live_node_stays_bounded_and_responsive_under_floods", DOMAIN);
-    let input = read_frames(manifest().join("bags/synth-hard"), &TopicMap::default()).expect("read bag");
-    let map = input.map.clone().expect("map");
-    let mut localizer = Localizer::new(LocalizerParams::default()).expect("a localizer");
-    localizer.set_map(&map);
-    let good = input.frames.iter().find(|f| localizer.process(f).pose.is_some()).cloned().expect("a posed frame");
+    let (map, good) = map_and_good_frame();
     let tmp = tempfile::tempdir().expect("tmp");
     let log = tmp.path().join("node.log");
     let mut node = start_node(&log, good.correspondences.len() + 50);

@@ -219,15 +219,21 @@ fn oversized(good: &Frame, stamp: i64, extra: usize) -> msgs::Correspondences {
     msg
 }
 
-#[test]
-#[ignore = "runs inside a network namespace, via live_node_counts_each_bad_message_and_keeps_going"]
-fn inner_live_node_bad_messages() {
-    netns::enter_netns("live_node_counts_each_bad_message_and_keeps_going", DOMAIN);
+/// The shipped hard bag's map and a frame of it that localizes offline.
+pub(super) fn map_and_good_frame() -> (angle_i2p::frame::MapCloud, Frame) {
     let input = read_frames(manifest().join("bags/synth-hard"), &TopicMap::default()).expect("read bag");
     let map = input.map.clone().expect("map");
     let mut localizer = Localizer::new(LocalizerParams::default()).expect("a localizer");
     localizer.set_map(&map);
     let good = input.frames.iter().find(|f| localizer.process(f).pose.is_some()).cloned().expect("a posed frame");
+    (map, good)
+}
+
+#[test]
+#[ignore = "runs inside a network namespace, via live_node_counts_each_bad_message_and_keeps_going"]
+fn inner_live_node_bad_messages() {
+    netns::enter_netns("live_node_counts_each_bad_message_and_keeps_going", DOMAIN);
+    let (map, good) = map_and_good_frame();
     let max_correspondences = good.correspondences.len() + 50;
     let tmp = tempfile::tempdir().expect("tmp");
     let log = tmp.path().join("node.log");
