@@ -191,9 +191,10 @@ fn restamped(dir: &Path, args: &[&str]) -> Option<PathBuf> {
     Some(out)
 }
 
-/// The shipped parameters file with `overrides` (`-p` style), the model's constants given there.
+/// The shipped reference of every parameter (`params/expert.yaml`) with `overrides` (`-p` style),
+/// the model's constants given there.
 fn shipped_params(overrides: &[&str]) -> LocalizerParams {
-    resolve_cli(Some(&manifest().join("params/angle_i2p.yaml")), overrides).expect("the shipped params").localizer
+    resolve_cli(Some(&manifest().join("params/expert.yaml")), overrides).expect("the shipped params").localizer
 }
 
 /// The first frame of `bags/synth-hard`, as the network's geometry, and its map.
