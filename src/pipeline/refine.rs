@@ -39,6 +39,12 @@ pub struct FinalRefine {
     /// 0: off.
     pub alternatives: usize,
     pub switch_margin: f64,
+    /// The chosen pose is refined once more from the matches within this many inlier
+    /// thresholds of it ([`FinalRefine::out_of_basin`]), and that candidate weighed against it
+    /// as the alternatives are; 1: off. Three thresholds reach a basin of the reprojection
+    /// error a few degrees from the pose on a frame whose matches barely constrain it, and the
+    /// robust loss at the frame's noise keeps what lies between the basins from pulling.
+    pub widen_threshold: f64,
 }
 
 impl Default for FinalRefine {
@@ -52,6 +58,7 @@ impl Default for FinalRefine {
             rounds: 4,
             alternatives: 4,
             switch_margin: 1.25,
+            widen_threshold: 3.0,
         }
     }
 }
@@ -63,7 +70,7 @@ impl FinalRefine {
     /// Refines `solution` in place on the `correspondences` within PnP's `inlier_threshold_px`
     /// of its pose; `pixel_scale` scales the loss's pixel floor as PnP's pixels are
     /// ([`crate::pnp::PnpParams::for_camera`]). Leaves it unchanged when fewer than `min_count`
-    /// agree or the refinement fails.
+    /// agree or the refinement fails; whether it refined it.
     pub fn apply(
         &self,
         k: &Intrinsics,
@@ -72,7 +79,7 @@ impl FinalRefine {
         pixel_scale: f64,
         min_count: usize,
         solution: &mut PnpSolution,
-    ) {
+    ) -> bool {
         let (mut gathered, mut refined) = (0, false);
         for _ in 0..self.rounds.max(1) {
             let agreeing = Agreeing::gather(k, correspondences, inlier_threshold_px, &solution.pose);
@@ -80,8 +87,7 @@ impl FinalRefine {
                 break;
             }
             gathered = agreeing.correspondences.len();
-            let loss_scale_px = (self.loss_sigmas * agreeing.noise_px).max(self.min_loss_scale_px * pixel_scale);
-            if !self.refine_on(k, &agreeing.correspondences, loss_scale_px, solution) {
+            if !self.refine_on(k, &agreeing.correspondences, self.loss_scale_px(&agreeing, pixel_scale), solution) {
                 break;
             }
             refined = true;
@@ -89,6 +95,48 @@ impl FinalRefine {
         if refined {
             measure_covariance(k, correspondences, inlier_threshold_px, solution);
         }
+        refined
+    }
+
+    /// LO-RANSAC's least squares from a wide threshold (Chum, Matas & Kittler 2003; Lebeda,
+    /// Matas & Chum 2012), on a refined `solution`: a pose that settled in a wrong basin of the
+    /// reprojection error next to the true one (a degree or more off, on a frame whose matches
+    /// barely constrain it) gathers within the inlier threshold only the matches that agree with
+    /// it there. Gathered within [`FinalRefine::widen_threshold`] thresholds and weighed by the
+    /// robust loss at the noise of those within one, the true matches pull it out; then the
+    /// rounds of [`FinalRefine::apply`] settle it. A candidate for the caller to weigh against
+    /// the pose (a wider gathering can also take a biased group in); `None` when off, or when
+    /// too few agree or the refinement fails.
+    pub fn out_of_basin(
+        &self,
+        k: &Intrinsics,
+        correspondences: &[Correspondence],
+        inlier_threshold_px: f64,
+        pixel_scale: f64,
+        min_count: usize,
+        solution: &PnpSolution,
+    ) -> Option<PnpSolution> {
+        if !(self.widen_threshold > 1.0) {
+            return None;
+        }
+        let near = Agreeing::gather(k, correspondences, inlier_threshold_px, &solution.pose);
+        let wide = Agreeing::gather(k, correspondences, self.widen_threshold * inlier_threshold_px, &solution.pose);
+        if near.correspondences.len() < min_count.max(3) {
+            return None;
+        }
+        let mut candidate = solution.clone();
+        if !self.refine_on(k, &wide.correspondences, self.loss_scale_px(&near, pixel_scale), &mut candidate) {
+            return None;
+        }
+        if !self.apply(k, correspondences, inlier_threshold_px, pixel_scale, min_count, &mut candidate) {
+            measure_covariance(k, correspondences, inlier_threshold_px, &mut candidate);
+        }
+        Some(candidate)
+    }
+
+    /// The loss's scale for `agreeing`: `loss_sigmas` of their noise, at least the floor.
+    fn loss_scale_px(&self, agreeing: &Agreeing, pixel_scale: f64) -> f64 {
+        (self.loss_sigmas * agreeing.noise_px).max(self.min_loss_scale_px * pixel_scale)
     }
 
     /// LM on `agreeing` from `solution`'s pose, into it; whether it succeeded.
@@ -270,6 +318,42 @@ mod tests {
             assert!(after_rounds < 0.05, "seed {seed}: {after_rounds}° off after the rounds");
             assert!(after_rounds < 0.5 * after_one, "seed {seed}: {after_rounds}° vs {after_one}° after one gathering");
         }
+    }
+
+    #[test]
+    fn a_pose_in_a_basin_degrees_off_leaves_it_from_a_wide_gathering() {
+        // Turned 4° about a vertical axis through the point 0.65 m ahead: the true matches at
+        // that depth still agree within PnP's 8 px, the nearer and farther ones are 12–27 px
+        // off; and 60 wrong matches that this turned pose explains exactly (a matcher's patch of
+        // mistakes on a repeated object) hold it there. The rounds within 8 px stay in that
+        // basin, 1–4° off; gathered within three thresholds, the 150 true matches pull it out.
+        let rounds = FinalRefine::default();
+        let turn = UnitQuaternion::from_euler_angles(0.0, 0.07, 0.0);
+        let pivot = nalgebra::Vector3::new(0.0, 0.0, 0.65);
+        let off = Isometry3::from_parts(Translation3::from(pivot - turn * pivot), turn);
+        let mut left_the_basin = 0;
+        for seed in 1..6 {
+            let (k, truth, mut corrs) = frame(seed);
+            corrs.truncate(150);
+            let wrong = truth * off;
+            let mut lcg = crate::rng::Lcg64(seed + 50);
+            for _ in 0..60 {
+                let pixel = Point2::new(20.0 + 300.0 * lcg.next_f64(), 20.0 + 200.0 * lcg.next_f64());
+                let point = wrong * k.back_project(&pixel, 0.5 + 0.3 * lcg.next_f64());
+                corrs.push(Correspondence { pixel, point, score: 1.0 });
+            }
+            let mut stayed = unrefined(wrong, corrs.len());
+            rounds.apply(&k, &corrs, 8.0, 1.0, 6, &mut stayed);
+            let left = rounds.out_of_basin(&k, &corrs, 8.0, 1.0, 6, &stayed).expect("a candidate");
+            let (before, after) = (rotation_error_deg(&stayed.pose, &truth), rotation_error_deg(&left.pose, &truth));
+            assert!(before > 0.9, "seed {seed}: the rounds alone reach {before}°: the test shows nothing");
+            assert!(after <= before + 1e-3, "seed {seed}: {after}° off after the wide gathering, {before}° before");
+            left_the_basin += usize::from(after < 0.05);
+        }
+        assert!(left_the_basin >= 4, "{left_the_basin} of 5 frames left the basin");
+        let off = FinalRefine { widen_threshold: 1.0, ..FinalRefine::default() };
+        let (k, truth, corrs) = frame(1);
+        assert!(off.out_of_basin(&k, &corrs, 8.0, 1.0, 6, &unrefined(truth, corrs.len())).is_none());
     }
 
     #[test]
