@@ -27,7 +27,7 @@ mod significance;
 pub use cascade::{CascadeParams, FastPathCheck, PlainSearch};
 pub use localization::{Failure, Localization, Method, StageTimings};
 pub use params::LocalizerParams;
-pub use refine::FinalRefine;
+pub use refine::{FinalRefine, RefineFrame};
 
 /// Why a localizer cannot be set up for its method.
 #[derive(Debug, Clone, thiserror::Error)]
@@ -499,18 +499,20 @@ impl Localizer {
     /// Rejection keeps a subset; once the pose is known, every correspondence that agrees with
     /// it within the frame's own noise sharpens it in a last LM ([`FinalRefine`]).
     fn refine_on_all(&self, frame: &Frame, solution: &mut PnpSolution) {
-        let min_count = self.params.pnp.min_inliers.max(4);
-        let pnp = &self.params.pnp;
-        let threshold = pnp.for_camera(frame.intrinsics.fx).threshold_px;
-        let scale = threshold / pnp.threshold_px;
-        self.params.final_refine.apply(
-            &frame.intrinsics,
-            &frame.correspondences,
-            threshold,
-            scale,
-            min_count,
-            solution,
-        );
+        self.params.final_refine.apply(&self.refine_frame(frame), solution);
+    }
+
+    /// `frame`'s correspondences as the last refinement weighs them: at PnP's threshold for its
+    /// camera.
+    fn refine_frame<'a>(&self, frame: &'a Frame) -> RefineFrame<'a> {
+        let pnp = self.pnp_params(frame);
+        RefineFrame {
+            k: &frame.intrinsics,
+            correspondences: &frame.correspondences,
+            inlier_threshold_px: pnp.threshold_px,
+            pixel_scale: pnp.threshold_px / self.params.pnp.threshold_px,
+            min_count: pnp.min_inliers.max(4),
+        }
     }
 
     /// The pool's first `final_refine.alternatives` other candidates and `poses` (the fast
@@ -544,12 +546,8 @@ impl Localizer {
     /// ones, poses 2–4° off come within 1–2°.
     fn out_of_basin(&self, frame: &Frame, solution: &mut PnpSolution, flagged: Flagged) {
         let (k, refine, pnp) = (&frame.intrinsics, &self.params.final_refine, self.pnp_params(frame));
-        let (scale, min_count) = (pnp.threshold_px / self.params.pnp.threshold_px, pnp.min_inliers.max(4));
         let correspondences = &frame.correspondences;
-        let Some(candidate) = refine.out_of_basin(k, correspondences, pnp.threshold_px, scale, min_count, solution)
-        else {
-            return;
-        };
+        let Some(candidate) = refine.out_of_basin(&self.refine_frame(frame), solution) else { return };
         let support = |pose| arbiter::support(k, correspondences, pose, pnp.threshold_px, pnp.coverage_cell_px);
         let ((incumbent, incumbent_inliers), (found, inliers)) = (support(&solution.pose), support(&candidate.pose));
         let challenge = arbiter::Challenge { support: found, shared: arbiter::shared_inliers(&inliers, &incumbent_inliers) };

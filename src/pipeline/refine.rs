@@ -63,23 +63,29 @@ impl Default for FinalRefine {
     }
 }
 
+/// A frame's correspondences as the last refinement weighs them.
+#[derive(Clone, Copy, Debug)]
+pub struct RefineFrame<'a> {
+    pub k: &'a Intrinsics,
+    pub correspondences: &'a [Correspondence],
+    /// PnP's inlier threshold for the camera, pixels.
+    pub inlier_threshold_px: f64,
+    /// How PnP's pixels scale for the camera ([`crate::pnp::PnpParams::for_camera`]): the
+    /// loss's pixel floor scales with it.
+    pub pixel_scale: f64,
+    /// Correspondences that must agree with a pose for it to be refined.
+    pub min_count: usize,
+}
+
 /// The Rayleigh distribution's median over its σ: √(2 ln 2).
 const RAYLEIGH_MEDIAN: f64 = 1.177_410_022_515_474_7;
 
 impl FinalRefine {
-    /// Refines `solution` in place on the `correspondences` within PnP's `inlier_threshold_px`
-    /// of its pose; `pixel_scale` scales the loss's pixel floor as PnP's pixels are
-    /// ([`crate::pnp::PnpParams::for_camera`]). Leaves it unchanged when fewer than `min_count`
-    /// agree or the refinement fails; whether it refined it.
-    pub fn apply(
-        &self,
-        k: &Intrinsics,
-        correspondences: &[Correspondence],
-        inlier_threshold_px: f64,
-        pixel_scale: f64,
-        min_count: usize,
-        solution: &mut PnpSolution,
-    ) -> bool {
+    /// Refines `solution` in place on the frame's correspondences within PnP's inlier threshold
+    /// of its pose. Leaves it unchanged when fewer than `min_count` agree or the refinement
+    /// fails; whether it refined it.
+    pub fn apply(&self, frame: &RefineFrame, solution: &mut PnpSolution) -> bool {
+        let RefineFrame { k, correspondences, inlier_threshold_px, pixel_scale, min_count } = *frame;
         let (mut gathered, mut refined) = (0, false);
         for _ in 0..self.rounds.max(1) {
             let agreeing = Agreeing::gather(k, correspondences, inlier_threshold_px, &solution.pose);
@@ -107,16 +113,9 @@ impl FinalRefine {
     /// rounds of [`FinalRefine::apply`] settle it. A candidate for the caller to weigh against
     /// the pose (a wider gathering can also take a biased group in); `None` when off, or when
     /// too few agree or the refinement fails.
-    pub fn out_of_basin(
-        &self,
-        k: &Intrinsics,
-        correspondences: &[Correspondence],
-        inlier_threshold_px: f64,
-        pixel_scale: f64,
-        min_count: usize,
-        solution: &PnpSolution,
-    ) -> Option<PnpSolution> {
-        if !(self.widen_threshold > 1.0) {
+    pub fn out_of_basin(&self, frame: &RefineFrame, solution: &PnpSolution) -> Option<PnpSolution> {
+        let RefineFrame { k, correspondences, inlier_threshold_px, pixel_scale, min_count } = *frame;
+        if self.widen_threshold.is_nan() || self.widen_threshold <= 1.0 {
             return None;
         }
         let near = Agreeing::gather(k, correspondences, inlier_threshold_px, &solution.pose);
@@ -128,7 +127,7 @@ impl FinalRefine {
         if !self.refine_on(k, &wide.correspondences, self.loss_scale_px(&near, pixel_scale), &mut candidate) {
             return None;
         }
-        if !self.apply(k, correspondences, inlier_threshold_px, pixel_scale, min_count, &mut candidate) {
+        if !self.apply(frame, &mut candidate) {
             measure_covariance(k, correspondences, inlier_threshold_px, &mut candidate);
         }
         Some(candidate)
@@ -257,6 +256,12 @@ mod tests {
         refined_within(refine, k, corrs, start, 8.0)
     }
 
+    /// `corrs` as PnP's threshold `threshold_px` at its reference focal length and 6 matches at
+    /// least take them.
+    fn at<'a>(k: &'a Intrinsics, corrs: &'a [Correspondence], threshold_px: f64) -> RefineFrame<'a> {
+        RefineFrame { k, correspondences: corrs, inlier_threshold_px: threshold_px, pixel_scale: 1.0, min_count: 6 }
+    }
+
     /// A solution at `pose` over `count` correspondences, before the last refinement.
     fn unrefined(pose: Isometry3<f64>, count: usize) -> PnpSolution {
         PnpSolution {
@@ -279,7 +284,7 @@ mod tests {
         threshold_px: f64,
     ) -> Isometry3<f64> {
         let mut solution = unrefined(start, corrs.len());
-        refine.apply(k, corrs, threshold_px, 1.0, 6, &mut solution);
+        refine.apply(&at(k, corrs, threshold_px), &mut solution);
         solution.pose
     }
 
@@ -343,8 +348,8 @@ mod tests {
                 corrs.push(Correspondence { pixel, point, score: 1.0 });
             }
             let mut stayed = unrefined(wrong, corrs.len());
-            rounds.apply(&k, &corrs, 8.0, 1.0, 6, &mut stayed);
-            let left = rounds.out_of_basin(&k, &corrs, 8.0, 1.0, 6, &stayed).expect("a candidate");
+            rounds.apply(&at(&k, &corrs, 8.0), &mut stayed);
+            let left = rounds.out_of_basin(&at(&k, &corrs, 8.0), &stayed).expect("a candidate");
             let (before, after) = (rotation_error_deg(&stayed.pose, &truth), rotation_error_deg(&left.pose, &truth));
             assert!(before > 0.9, "seed {seed}: the rounds alone reach {before}°: the test shows nothing");
             assert!(after <= before + 1e-3, "seed {seed}: {after}° off after the wide gathering, {before}° before");
@@ -353,7 +358,7 @@ mod tests {
         assert!(left_the_basin >= 4, "{left_the_basin} of 5 frames left the basin");
         let off = FinalRefine { widen_threshold: 1.0, ..FinalRefine::default() };
         let (k, truth, corrs) = frame(1);
-        assert!(off.out_of_basin(&k, &corrs, 8.0, 1.0, 6, &unrefined(truth, corrs.len())).is_none());
+        assert!(off.out_of_basin(&at(&k, &corrs, 8.0), &unrefined(truth, corrs.len())).is_none());
     }
 
     #[test]
@@ -370,7 +375,7 @@ mod tests {
                 corrs.push(Correspondence { pixel: c.pixel + offset, ..*c });
             }
             let mut solution = unrefined(truth, corrs.len());
-            FinalRefine::default().apply(&k, &corrs, 8.0, 1.0, 6, &mut solution);
+            FinalRefine::default().apply(&at(&k, &corrs, 8.0), &mut solution);
             let on = |set: &[Correspondence]| {
                 let pixels: Vec<_> = set.iter().map(|c| c.pixel).collect();
                 let points: Vec<_> = set.iter().map(|c| c.point).collect();
