@@ -35,8 +35,8 @@ where
     let c = ros
         .create_client::<Q, A>(SERVICE_MAPPING, &name, &wire::service_type(type_name), qos.clone(), qos)
         .expect("client");
-    let appeared = futures::executor::block_on(netns::with_timeout(c.wait_for_service(ros), Duration::from_secs(20)));
-    assert!(appeared.is_some(), "~/{service} never appeared\n{}", netns::read_log(log));
+    let appeared = netns::service_appeared(&c, ros, Duration::from_secs(20));
+    assert!(appeared, "~/{service} never appeared\n{}", netns::read_log(log));
     c
 }
 

@@ -47,9 +47,7 @@ fn client<Req: Message + Clone + 'static, Resp: Message + 'static>(
             qos,
         )
         .expect("client");
-    let appeared =
-        futures::executor::block_on(netns::with_timeout(client.wait_for_service(ros), Duration::from_secs(20)));
-    assert!(appeared.is_some(), "{service} never appeared");
+    assert!(netns::service_appeared(&client, ros, Duration::from_secs(20)), "{service} never appeared");
     client
 }
 

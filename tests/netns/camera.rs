@@ -95,9 +95,8 @@ pub fn trigger(
             qos,
         )
         .expect("client");
-    let appeared =
-        futures::executor::block_on(super::with_timeout(client.wait_for_service(ros), Duration::from_secs(20)));
-    assert!(appeared.is_some(), "{what}: {service} never appeared\n{}", super::read_log(log));
+    let appeared = super::service_appeared(&client, ros, Duration::from_secs(20));
+    assert!(appeared, "{what}: {service} never appeared\n{}", super::read_log(log));
     let end = Instant::now() + Duration::from_secs(30);
     while Instant::now() < end {
         let call = client.async_call_service(TriggerRequest::default());

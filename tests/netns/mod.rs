@@ -115,6 +115,24 @@ pub async fn with_timeout<F: std::future::Future>(fut: F, limit: Duration) -> Op
     }
 }
 
+/// Whether `client`'s service appeared within `limit`. ros2-client's `wait_for_service` wakes on
+/// graph events and re-reads the match tables only then: a match recorded after the last event
+/// it saw leaves it waiting for good. Waiting in one-second slices re-reads the tables each time.
+pub fn service_appeared<Q: ros2_client::Message + 'static, A: ros2_client::Message + 'static>(
+    client: &ros2_client::Client<Q, A>,
+    ros: &ros2_client::Node,
+    limit: Duration,
+) -> bool {
+    let end = Instant::now() + limit;
+    while Instant::now() < end {
+        let slice = with_timeout(client.wait_for_service(ros), Duration::from_secs(1));
+        if futures::executor::block_on(slice).is_some() {
+            return true;
+        }
+    }
+    false
+}
+
 /// Waits until `ok` (polled every 50 ms), failing after 30 s with the nodes' logs.
 pub fn wait_for(what: &str, logs: &[&std::path::Path], mut ok: impl FnMut() -> bool) {
     let end = Instant::now() + Duration::from_secs(30);
