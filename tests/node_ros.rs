@@ -88,8 +88,9 @@ fn inner_namespaces_qos_and_ros_params() {
     let map_path = format!("map_path:={}", ply.display());
     let map_frame = format!("map_frame_id:={}", map.frame_id);
     let ply_log = tmp.path().join("ply.log");
-    let _cam3 =
-        start_node(&ply_log, &[&["-r", "__ns:=/cam3", "-p", &map_path, "-p", &map_frame][..], &common_args].concat());
+    // Its map may come from the file only (`map_source: file`): a map on its topic is refused.
+    let file_only = ["-r", "__ns:=/cam3", "-p", &map_path, "-p", &map_frame, "-p", "map_source:=file"];
+    let _cam3 = start_node(&ply_log, &[&file_only[..], &common_args].concat());
     let mut logs = logs;
     logs.push(ply_log);
     let log_refs: Vec<&Path> = logs.iter().map(|p| p.as_path()).collect();
@@ -112,6 +113,21 @@ fn inner_namespaces_qos_and_ros_params() {
         c.map.publish(convert::point_cloud(frame.stamp, &map)).expect("map");
     }
     cam2_map.publish(convert::point_cloud(frame.stamp, &map)).expect("map");
+    // A map 5 m off on /cam3's topic: counted and refused before any frame, so /cam3's pose
+    // below (within 1e-6 m of the truth) is still from its file.
+    let moved = angle_i2p::frame::MapCloud {
+        points: map.points.iter().map(|p| p + nalgebra::Vector3::new(5.0, 0.0, 0.0)).collect(),
+        frame_id: map.frame_id.clone(),
+    };
+    cams[2].map.publish(convert::point_cloud(frame.stamp, &moved)).expect("map");
+    let mut refused = 0;
+    netns::wait_for("/cam3 refuses the map on its topic", &log_refs, || {
+        while let Ok(Some((d, _))) = diag.take() {
+            refused = refused.max(diag_of(&d, "/cam3/angle_i2p", "error.map_refused"));
+        }
+        refused >= 1
+    });
+    assert!(read(&logs[3]).contains("node.map_source is file"), "{}", read(&logs[3]));
 
     // Each camera gets its own frame (its own stamp) and only its node answers.
     let stamps = [frame.stamp + 1_000_000_000, frame.stamp + 2_000_000_000, frame.stamp + 3_000_000_000];

@@ -159,7 +159,11 @@ fn subscribe(node: &mut Node, s: &Setup) -> Result<(mpsc::Receiver<Routed>, Vec<
     for (i, camera) in s.cameras.iter().enumerate() {
         cameras::subscribe(&mut r, i, camera, &s.names, &rules)?;
     }
-    readers::subscribe_map(&mut r, &s.topics, s.np.map_qos, &s.limits)?;
+    if s.np.map_source.takes_topic() {
+        readers::subscribe_map(&mut r, &s.topics, s.np.map_qos, &s.limits)?;
+    } else {
+        readers::refuse_map_topic(&mut r, &s.topics)?;
+    }
     if s.reads_tf {
         readers::subscribe_tf(&mut r, &s.topics, &s.tf_buffer)?;
     }

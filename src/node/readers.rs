@@ -195,6 +195,21 @@ pub fn subscribe_map(r: &mut Readers, topics: &Topics, map_qos: MapQos, limits: 
     Ok(())
 }
 
+/// The map topic heard but never taken (`map_source: file`): each map on it is counted
+/// (`error.map_refused`) and logged with its size, so an attempt to move the robot's map shows
+/// in `/diagnostics`. One volatile reader: a map latched before the node started is not heard.
+pub fn refuse_map_topic(r: &mut Readers, topics: &Topics) -> Result<()> {
+    let topic = topics.map.clone();
+    read(r, &topics.map, &dds::reliable(1), move |m: msgs::PointCloud2| {
+        let detail = format!(
+            "a map on {topic} ({} points, frame {:?}) refused: node.map_source is file",
+            u64::from(m.width) * u64::from(m.height),
+            m.header.frame_id
+        );
+        Some(Input::Invalid { reason: "map_refused", detail })
+    })
+}
+
 /// `/tf` and `/tf_static` into `buffer` (for `map → odom`); bad transforms, new frames over
 /// its frame limit and samples evicted over its sample budget are counted (`invalid_transform`)
 /// and logged, one line per message however many transforms it carried.

@@ -27,7 +27,7 @@ pub struct CameraParams {
     pub pixels: PixelSpace,
 }
 
-pub use node::{MapQos, NodeParams, TfMode};
+pub use node::{MapQos, MapSource, NodeParams, TfMode};
 pub use resolve::{resolve, resolve_cli, Layers, ResolveError};
 pub use ros_args::{ArgsError, LogLevel, Names, ParamOverride, Remap, RosArgs, DEFAULT_NODE_NAME};
 pub use topics::TopicMap;

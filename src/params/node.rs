@@ -70,8 +70,10 @@ pub struct NodeParams {
     pub tf_static_topic: String,
     /// Durability of the map subscription (see [`MapQos`]).
     pub map_qos: MapQos,
+    /// Where the map may come from (see [`MapSource`]): who may change the map.
+    pub map_source: MapSource,
     /// A PLY or PCD file read as the map at start (ASCII or binary); empty: the map comes only
-    /// from `topics.map`. A map on the topic later replaces it.
+    /// from `topics.map`. A map on the topic later replaces it (unless `map_source: file`).
     pub map_path: String,
     /// The frame of the points in `map_path`.
     pub map_frame_id: String,
@@ -135,6 +137,37 @@ pub enum MapQos {
     Volatile,
 }
 
+/// Where the node's map may come from. On a network where anyone may publish, a map on the
+/// topic relocates the robot wherever its sender wants; `file` closes that door.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MapSource {
+    /// `map_path` at start (when set) and `~/load_map`, and any map on the map topic, which
+    /// replaces it.
+    #[default]
+    FileAndTopic,
+    /// Only `map_path` (which must be set) and `~/load_map`; a map heard on the map topic is
+    /// refused, counted (`error.map_refused`) and logged.
+    File,
+    /// Only the map topic (`map_path` must be empty).
+    Topic,
+}
+
+impl MapSource {
+    pub fn name(self) -> &'static str {
+        match self {
+            MapSource::FileAndTopic => "file_and_topic",
+            MapSource::File => "file",
+            MapSource::Topic => "topic",
+        }
+    }
+
+    /// Whether a map heard on the map topic may replace the one held.
+    pub fn takes_topic(self) -> bool {
+        self != MapSource::File
+    }
+}
+
 impl Default for NodeParams {
     fn default() -> Self {
         Self {
@@ -162,6 +195,7 @@ impl Default for NodeParams {
             tf_topic: "/tf".into(),
             tf_static_topic: "/tf_static".into(),
             map_qos: MapQos::Auto,
+            map_source: MapSource::FileAndTopic,
             map_path: String::new(),
             map_frame_id: "map".into(),
             initialpose_topic: "initialpose".into(),

@@ -2,7 +2,7 @@
 //! outside it stops the command with an error naming the key, the value and the valid range,
 //! instead of failing every frame later (or panicking: `network.neighbours: 0` divides by it).
 
-use super::{AppParams, LocalizerParams};
+use super::{AppParams, LocalizerParams, MapSource};
 use crate::reject::network::NetworkParams;
 
 /// A parameter outside its valid range.
@@ -88,6 +88,20 @@ fn camera_namespaces(cameras: &[String]) -> Result<(), InvalidParam> {
     Ok(())
 }
 
+/// `node.map_source` against `node.map_path`: `file` needs the file, `topic` refuses one.
+fn map_source(source: MapSource, map_path: &str) -> Result<(), InvalidParam> {
+    let range = match source {
+        MapSource::File if map_path.is_empty() => {
+            "file_and_topic or topic while node.map_path is empty (file reads it)"
+        }
+        MapSource::Topic if !map_path.is_empty() => {
+            "file_and_topic or file while node.map_path is set (topic ignores it)"
+        }
+        _ => return Ok(()),
+    };
+    Err(InvalidParam { key: "node.map_source", value: source.name().to_string(), range })
+}
+
 impl AppParams {
     /// Checks every parameter with a range, the localizer's first; the first one outside its
     /// range is the error.
@@ -115,6 +129,7 @@ impl AppParams {
         real("node.transform_tolerance_s", n.transform_tolerance_s, Range::NonNegative)?;
         real("node.tf_publish_rate_hz", n.tf_publish_rate_hz, Range::NonNegative)?;
         at_least("node.queue_depth", n.queue_depth as u64, 1, "at least 1")?;
+        map_source(n.map_source, &n.map_path)?;
         camera_namespaces(&n.cameras)
     }
 }
@@ -235,6 +250,11 @@ mod tests {
         let mut p = AppParams::default();
         p.node.cameras = vec!["cam0".into(), "robot/cam_1".into()];
         assert_eq!(p.validate(), Ok(()));
+        p.node.map_path = "map.ply".into();
+        for source in [MapSource::FileAndTopic, MapSource::File] {
+            p.node.map_source = source;
+            assert_eq!(p.validate(), Ok(()));
+        }
     }
 
     #[test]
@@ -267,6 +287,14 @@ mod tests {
             ("node.cameras", Box::new(|p| p.node.cameras = vec!["".into()])),
             ("node.cameras", Box::new(|p| p.node.cameras = vec!["robot//cam".into()])),
             ("node.cameras", Box::new(|p| p.node.cameras = vec!["0cam".into()])),
+            ("node.map_source", Box::new(|p| p.node.map_source = MapSource::File)),
+            (
+                "node.map_source",
+                Box::new(|p| {
+                    p.node.map_source = MapSource::Topic;
+                    p.node.map_path = "map.ply".into();
+                }),
+            ),
         ];
         for (key, set) in cases {
             let mut p = AppParams::default();
