@@ -218,3 +218,31 @@ fn a_skipped_check_is_recorded_for_the_summary() {
     let text = std::fs::read_to_string(&log).expect("the skip log");
     assert_eq!(text, "some_test: no shared data at ../shared/data\nother_test: two lines\n");
 }
+
+/// SROS2's Enforce mode: DDS security is not built in, so the node refuses to start (rcl refuses
+/// too where it cannot secure the node) instead of running unsecured; it stops at once, before
+/// any DDS participant exists, naming the variables.
+#[test]
+fn node_refuses_enforced_security_it_cannot_apply() {
+    let mut node = Command::new(binary())
+        .args(["node", "--ros-args", "--enclave", "/angle_i2p"])
+        .env("ROS_SECURITY_ENABLE", "true")
+        .env("ROS_SECURITY_STRATEGY", "Enforce")
+        .env("ROS_SECURITY_KEYSTORE", "/nonexistent/keystore")
+        .env("ROS_DOMAIN_ID", "231")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run node");
+    // A node that started after all would run until stopped: give it 20 s, then stop it.
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    while node.try_wait().expect("wait").is_none() && std::time::Instant::now() < end {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let _ = node.kill();
+    let out = node.wait_with_output().expect("node output");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("Enforce") && stderr.contains("refusing to start"), "{stderr}");
+    assert!(stderr.contains("/nonexistent/keystore") && stderr.contains("/angle_i2p"), "{stderr}");
+}

@@ -43,10 +43,11 @@ mod map_inbox;
 mod outputs;
 pub mod qos_watch;
 pub mod queue;
-mod recorder;
 mod readers;
+mod recorder;
 pub mod ros_params;
 mod run;
+pub mod security;
 pub mod services;
 mod setup;
 pub mod tf;
@@ -92,8 +93,15 @@ pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     if let Some(level) = args.log_level {
         log::set_log_level(level);
     }
-    if let Some(enclave) = &args.enclave {
-        eprintln!("[angle_i2p] WARN enclave {enclave:?} accepted but not applied: DDS security is not built in");
+    match security::SecurityEnv::from_process(args.enclave.as_deref()).plan()? {
+        security::SecurityPlan::Off { enclave: Some(enclave) } => {
+            eprintln!("[angle_i2p] enclave {enclave:?} noted; security is off (ROS_SECURITY_ENABLE is not true)");
+        }
+        security::SecurityPlan::Off { enclave: None } => {}
+        security::SecurityPlan::Unsecured { enclave } => eprintln!(
+            "[angle_i2p] WARN ROS_SECURITY_ENABLE=true in Permissive mode: DDS security is not built in, the node \
+             runs UNSECURED (enclave {enclave:?})"
+        ),
     }
     let rosout = args.rosout.unwrap_or(true);
     for flag in &args.ignored {

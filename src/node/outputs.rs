@@ -9,10 +9,10 @@ use ros2_client::Publisher;
 
 use super::dds;
 use super::debug_image::DebugImages;
-use super::recorder::Recorder;
 use super::diagnostics::Stats;
 use super::log::info;
 use super::log::{lock, warn};
+use super::recorder::Recorder;
 use super::tf::{FrameTf, TfBroadcast};
 use super::topics::Topics;
 use crate::frame::Frame;
