@@ -16,12 +16,12 @@ mod common;
 mod netns;
 use common::{binary, manifest};
 
-/// The live node's rows (over DDS, in a private network namespace).
-#[path = "bad_input/live_node.rs"]
-mod live_node;
 /// The live node under storms and floods (#38), with the same wire.
 #[path = "bad_input/live_floods.rs"]
 mod live_floods;
+/// The live node's rows (over DDS, in a private network namespace).
+#[path = "bad_input/live_node.rs"]
+mod live_node;
 
 /// The first `n` frames and the map of the shipped hard bag.
 fn sample(n: usize) -> (MapCloud, Vec<Frame>) {

@@ -14,8 +14,8 @@ use angle_i2p::pipeline::Localizer;
 use angle_i2p::reject::graph::Graphs;
 use angle_i2p::reject::inputs::{build_inputs, IndexedMap, NetworkInputs};
 use angle_i2p::reject::model_constants::metadata_of;
-use angle_i2p::reject::network_params::ModelConstant;
 use angle_i2p::reject::network::{NetworkError, NetworkParams, NetworkRejector};
+use angle_i2p::reject::network_params::ModelConstant;
 use angle_i2p::reject::{FrameGeometry, Rejector, SpectralRejector};
 
 mod common;

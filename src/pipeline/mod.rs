@@ -319,9 +319,10 @@ impl Localizer {
             Ok(mut solution) => {
                 if last_choice {
                     self.refine_on_all(frame, &mut solution);
-                    let fast_path_pose = out.fast_path_check.and_then(|c| c.pose).filter(|pose| {
-                        refine_alternatives > 0 && gate::admits(self.pose_gate.as_ref(), pose)
-                    });
+                    let fast_path_pose = out
+                        .fast_path_check
+                        .and_then(|c| c.pose)
+                        .filter(|pose| refine_alternatives > 0 && gate::admits(self.pose_gate.as_ref(), pose));
                     let margin = self.params.final_refine.switch_margin;
                     self.arbitrate_on_all(frame, fast_path_pose.as_slice(), margin, &mut solution);
                     self.confirm_on_all(frame, &mut solution, &mut plain, out);
@@ -550,7 +551,8 @@ impl Localizer {
         let Some(candidate) = refine.out_of_basin(&self.refine_frame(frame), solution) else { return };
         let support = |pose| arbiter::support(k, correspondences, pose, pnp.threshold_px, pnp.coverage_cell_px);
         let ((incumbent, incumbent_inliers), (found, inliers)) = (support(&solution.pose), support(&candidate.pose));
-        let challenge = arbiter::Challenge { support: found, shared: arbiter::shared_inliers(&inliers, &incumbent_inliers) };
+        let challenge =
+            arbiter::Challenge { support: found, shared: arbiter::shared_inliers(&inliers, &incumbent_inliers) };
         if let Some(better) = arbiter::challenger(incumbent, [(challenge, candidate)], refine.switch_margin) {
             *solution = better;
             self.reflag(frame, solution, flagged);

@@ -10,7 +10,6 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-
 use super::network_params::{ModelConstant, NetworkParams};
 
 /// Prefix of the model's metadata keys.

@@ -244,4 +244,3 @@ impl ModelConstant {
 fn yaml<T: Serialize>(value: &T) -> String {
     serde_yaml::to_string(value).map(|s| s.trim_end().to_string()).unwrap_or_default()
 }
-
