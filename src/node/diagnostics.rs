@@ -95,6 +95,14 @@ impl Stats {
         self.last_failure = Some(detail.into());
     }
 
+    /// A frame dropped because the node is not active (lifecycle): counted under `reason`, and
+    /// a pause for the health, not a failure.
+    pub fn drop_paused(&mut self, reason: &str, detail: impl Into<String>) {
+        self.health.paused(Instant::now());
+        *self.drops.entry(reason.to_string()).or_default() += 1;
+        self.last_failure = Some(detail.into());
+    }
+
     pub fn error(&mut self, reason: &str, detail: impl Into<String>) {
         *self.errors.entry(reason.to_string()).or_default() += 1;
         self.last_failure = Some(detail.into());

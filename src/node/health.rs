@@ -34,8 +34,12 @@ pub struct Health {
     inputs: Vec<InputActivity>,
     /// (when, localized) of frames that ended: localized, or failed/dropped.
     outcomes: VecDeque<(Instant, bool)>,
-    /// When the window began to be watched (nothing is STALE-for-silence before one window).
+    /// When the window began to be watched (nothing is STALE-for-silence before one window);
+    /// again when frames end after a pause.
     since: Instant,
+    /// Frames dropped within the window because the node is not active (lifecycle), while no
+    /// frame has ended since: a pause asked for, not a failure.
+    paused: VecDeque<Instant>,
 }
 
 impl Default for Health {
@@ -53,7 +57,7 @@ pub struct Level {
 
 impl Health {
     pub fn new(window: Duration, min_rate_hz: f64, now: Instant) -> Self {
-        Self { window, min_rate_hz, inputs: Vec::new(), outcomes: VecDeque::new(), since: now }
+        Self { window, min_rate_hz, inputs: Vec::new(), outcomes: VecDeque::new(), since: now, paused: VecDeque::new() }
     }
 
     /// A new `min_rate_hz` (a live parameter change).
@@ -76,10 +80,21 @@ impl Health {
         }
     }
 
-    /// A frame ended: localized (`true`) or failed / dropped.
+    /// A frame ended: localized (`true`) or failed / dropped. The first after a pause starts
+    /// the window afresh (the rate is not judged on the paused seconds).
     pub fn outcome(&mut self, localized: bool, now: Instant) {
+        if !self.paused.is_empty() {
+            self.paused.clear();
+            self.since = now;
+        }
         self.outcomes.push_back((now, localized));
         trim(&mut self.outcomes, now, self.window, |(t, _)| *t);
+    }
+
+    /// A frame dropped because the node is not active (lifecycle): not an outcome.
+    pub fn paused(&mut self, now: Instant) {
+        self.paused.push_back(now);
+        trim(&mut self.paused, now, self.window, |t| *t);
     }
 
     fn recent<'a, T: 'a>(
@@ -105,6 +120,13 @@ impl Health {
         }
         if !has_map {
             return say(DiagnosticStatus::ERROR, "no map: frames cannot be localized".into());
+        }
+        let paused = self.recent(&self.paused, now, |t| *t);
+        if paused > 0 {
+            return say(
+                DiagnosticStatus::OK,
+                format!("inactive (lifecycle): {paused} frames of the last {secs:.0} s dropped, not localized"),
+            );
         }
         if ended > 0 && localized == 0 {
             return say(
@@ -215,5 +237,34 @@ mod tests {
         assert_eq!(topics[1].level, DiagnosticStatus::WARN, "{topics:?}");
         // Everything quiet for a window: STALE.
         assert_eq!(h.level(at(9000), true).level, DiagnosticStatus::STALE);
+    }
+
+    /// Frames dropped while the node is inactive (lifecycle) are a pause, not failures: OK and
+    /// said so; once active, frames are judged afresh (no ERROR left over from the pause, no
+    /// low-rate WARN for the paused seconds).
+    #[test]
+    fn an_inactive_node_is_paused_not_failing() {
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        let mut h = health(t0);
+        for k in 0..40 {
+            let t = at(k * 100);
+            h.heard("camera_info", t);
+            h.heard("correspondences", t);
+            h.paused(t);
+        }
+        let inactive = h.level(at(4000), true);
+        assert_eq!(inactive.level, DiagnosticStatus::OK, "{inactive:?}");
+        assert!(inactive.message.contains("inactive"), "{inactive:?}");
+        // Activated: the first frames localize; the level is OK at once.
+        for k in 0..3 {
+            let t = at(4100 + k * 100);
+            h.heard("camera_info", t);
+            h.heard("correspondences", t);
+            h.outcome(true, t);
+        }
+        let active = h.level(at(4400), true);
+        assert_eq!(active.level, DiagnosticStatus::OK, "{active:?}");
+        assert!(active.message.contains("3 of 3"), "{active:?}");
     }
 }

@@ -69,7 +69,7 @@ fn dropped_inactive(active: &Activity, stamp: Stamp, stats: &Mutex<Stats>) -> bo
     if active.is_active() {
         return false;
     }
-    lock(stats).drop_frame("inactive", format!("frame {stamp}: dropped, the node is not active"));
+    lock(stats).drop_paused("inactive", format!("frame {stamp}: dropped, the node is not active"));
     true
 }
 
