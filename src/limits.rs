@@ -11,9 +11,9 @@
 //! * scores outside [0, 1] are clamped into it;
 //! * a CameraInfo, depth prior or ground-truth depth wider or taller than `max_image_side`
 //!   is refused (that part fails with the reason);
-//! * a camera image of the live node (`node.debug_image`) wider or taller than
-//!   `max_image_side`, or of more than `max_image_pixels` pixels, is refused before it is
-//!   decoded (a compressed one by its header);
+//! * a depth prior, ground-truth depth or camera image of the live node (`node.debug_image`)
+//!   of more than `max_image_pixels` pixels is refused before it is converted or decoded (a
+//!   compressed one by its header);
 //! * a map with more than `max_map_points` finite points keeps an even subsample;
 //!   non-finite map points are dropped;
 //! * a record (or decompressed chunk) over `max_record_bytes` makes the bag an error;
@@ -39,10 +39,10 @@ pub struct InputLimits {
     pub max_correspondences: usize,
     /// Largest width or height of a CameraInfo, depth prior, ground-truth depth or camera image.
     pub max_image_side: u32,
-    /// Most pixels (width × height) of a camera image the node decodes: a square image at
-    /// `max_image_side` alone is 67 M pixels (201 MB as RGB), and 200 KB PNGs of it made the
-    /// node hold 1.9–2.4 GB (#38). The default, 4096 × 4096, is 50 MB as RGB, 2× a 12 MP
-    /// camera's.
+    /// Most pixels (width × height) of a depth prior, ground-truth depth or camera image
+    /// converted or decoded: a square image at `max_image_side` alone is 67 M pixels (201 MB as
+    /// RGB, 268 MB as a float depth), and 200 KB PNGs of it made the node hold 1.9–2.4 GB (#38).
+    /// The default, 4096 × 4096, is 50 MB as RGB (64 MB as depth), 2× a 12 MP camera's.
     pub max_image_pixels: u64,
     /// Map points kept (an even subsample beyond it).
     pub max_map_points: usize,

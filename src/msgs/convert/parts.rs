@@ -18,6 +18,13 @@ fn check_side(what: &'static str, width: u32, height: u32, limits: &InputLimits)
     crate::limits::check_image_side(what, width, height, limits).map_err(|reason| MsgError::Invalid { what, reason })
 }
 
+/// Refuses an image that would be decoded into memory over `limits.max_image_side` or
+/// `limits.max_image_pixels`, before a pixel is converted.
+fn check_size(what: &'static str, width: u32, height: u32, limits: &InputLimits) -> Result<(), MsgError> {
+    check_side(what, width, height, limits)?;
+    crate::limits::check_image_pixels(what, width, height, limits).map_err(|reason| MsgError::Invalid { what, reason })
+}
+
 /// A `sensor_msgs/CameraInfo` → the frame's intrinsics.
 pub fn camera_info_part(msg: &CameraInfo, limits: &InputLimits) -> Result<FramePart, MsgError> {
     check_side("CameraInfo", msg.width, msg.height, limits)?;
@@ -45,7 +52,7 @@ pub fn correspondences_part(msg: Correspondences) -> Result<FramePart, MsgError>
 
 /// A `sensor_msgs/Image` (32FC1 or 16UC1) → the frame's monocular depth prior.
 pub fn depth_prior_part(msg: &Image, limits: &InputLimits) -> Result<FramePart, MsgError> {
-    check_side("depth prior", msg.width, msg.height, limits)?;
+    check_size("depth prior", msg.width, msg.height, limits)?;
     Ok(FramePart::DepthPrior { stamp: stamp(&msg.header), depth: depth_from_image(msg)? })
 }
 
@@ -108,7 +115,7 @@ pub fn ground_truth_pose_part(msg: &PoseStamped) -> Result<FramePart, MsgError> 
 
 /// A `sensor_msgs/Image` (16UC1 mm or 32FC1 m) → the frame's ground-truth depth.
 pub fn ground_truth_depth_part(msg: &Image, limits: &InputLimits) -> Result<FramePart, MsgError> {
-    check_side("ground-truth depth", msg.width, msg.height, limits)?;
+    check_size("ground-truth depth", msg.width, msg.height, limits)?;
     Ok(FramePart::GroundTruthDepth { stamp: stamp(&msg.header), depth: depth_from_image(msg)? })
 }
 
@@ -143,9 +150,15 @@ mod tests {
 
         let prior = super::super::image_32fc1(7, "cam", &DepthImage::new(2, 1, vec![1.0, 2.0]));
         assert!(matches!(depth_prior_part(&prior, &limits), Ok(FramePart::DepthPrior { stamp: 7, .. })));
-        let mut tall = prior;
+        let mut tall = prior.clone();
         tall.height = u32::MAX;
         assert!(depth_prior_part(&tall, &limits).is_err());
+        // Within max_image_side but over the pixel budget: refused before any pixel is read,
+        // the prior and the ground-truth depth alike.
+        let budget = InputLimits { max_image_pixels: 1, ..InputLimits::default() };
+        let err = depth_prior_part(&prior, &budget).unwrap_err().to_string();
+        assert!(err.contains("limits.max_image_pixels = 1") && err.contains("2x1"), "{err}");
+        assert!(ground_truth_depth_part(&prior, &budget).is_err());
 
         let c = Correspondence { pixel: Point2::new(1.0, 2.0), point: Point3::new(0.0, 0.0, 1.0), score: 0.5 };
         let msg = super::super::correspondences_msg(9, "cam", "map", &[c]);
