@@ -198,7 +198,7 @@ impl Cameras {
                 warn(&detail);
                 self.count_error(reason, &detail);
             }
-            (None, Input::Part(_) | Input::PartError { .. }) => {
+            (None, Input::Part(_) | Input::LimitedCorrespondences(..) | Input::PartError { .. }) => {
                 warn("a frame part without its camera (ignored)");
             }
         }

@@ -11,12 +11,14 @@ use super::log::{lock, warn};
 use super::queue::DropOldestQueue;
 use crate::frame::Stamp;
 use crate::frame::{Assembled, Frame, FrameAssembler, FramePart, IncompleteFrame, MapCloud, MonotonicNs, PartKind};
-use crate::limits::{InputLimits, LimitCounts};
+use crate::limits::{CorrespondenceFixes, InputLimits, LimitCounts};
 use crate::msgs::convert::DecodedMap;
 
 /// What a reader task hands to the ingest task.
 pub enum Input {
     Part(FramePart),
+    /// Correspondences already held to the input limits by their reader, and what that changed.
+    LimitedCorrespondences(FramePart, CorrespondenceFixes),
     /// A message that decoded but did not convert; `stamp` from its header.
     PartError {
         kind: PartKind,
@@ -120,6 +122,12 @@ impl Ingest {
                 drop(s);
                 let done = self.assembler.push(part, now);
                 self.handle(done);
+            }
+            Input::LimitedCorrespondences(part, fixes) => {
+                let before = self.limit_counts.clone();
+                self.limit_counts.add(&fixes);
+                self.count_limited(&before, part.stamp());
+                self.on_input(Input::Part(part), now);
             }
             Input::PartError { kind, stamp, reason } => {
                 let name = kind.name();

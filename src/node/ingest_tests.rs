@@ -137,6 +137,17 @@ fn what_the_limits_change_is_counted_by_name() {
     i.on_input(Input::Part(corr), 0);
     assert_eq!(i.queue.len(), 1, "the frame goes on, trimmed");
     assert_eq!(lock(&i.stats).error_count("correspondences_over_limit"), 1);
+
+    // The live node's reader holds a message to the limits itself (a flood of huge messages
+    // leaves only the limit waiting): counted once, as at assembly.
+    let msg = crate::msgs::convert::correspondences_msg(2, "cam", "map", &[c(0.2), c(0.9), c(0.5)]);
+    let (part, fixes) = crate::msgs::convert::correspondences_part_within(msg, &i.limits).expect("converts");
+    assert!(matches!(&part, FramePart::Correspondences { correspondences, .. } if correspondences.len() == 1));
+    assert_eq!(fixes.over_limit, 2);
+    i.on_input(info(2), 0);
+    i.on_input(Input::LimitedCorrespondences(part, fixes), 0);
+    assert_eq!(i.queue.len(), 2);
+    assert_eq!(lock(&i.stats).error_count("correspondences_over_limit"), 2);
 }
 
 /// A depth prior without one finite value is counted (#38) and its frame still goes on, as a

@@ -106,9 +106,15 @@ pub fn subscribe_frame_parts(r: &mut Readers, topics: &Topics, limits: &InputLim
         part_or_error(PartKind::CameraInfo, stamp, convert::camera_info_part(&m, &l))
     })?;
     // Best effort: matches reliable and best-effort matchers alike.
-    read(r, &topics.correspondences, &sensor, |m: msgs::Correspondences| {
+    // Held to the limits here, so a flood of huge messages leaves only the limit per frame
+    // waiting in the queues (#38).
+    let l = limits.clone();
+    read(r, &topics.correspondences, &sensor, move |m: msgs::Correspondences| {
         let stamp = convert::stamp(&m.header);
-        part_or_error(PartKind::Correspondences, stamp, convert::correspondences_part(m))
+        Some(match convert::correspondences_part_within(m, &l) {
+            Ok((part, fixes)) => Input::LimitedCorrespondences(part, fixes),
+            Err(e) => Input::PartError { kind: PartKind::Correspondences, stamp, reason: e.to_string() },
+        })
     })?;
     if wants_prior {
         let l = limits.clone();

@@ -120,6 +120,25 @@ fn inner_live_node_floods() {
         std::thread::sleep(Duration::from_millis(30));
     }
     answers.push(("image flood", good_frame_answers(&wire, &good, s(30), &log)));
+    eprintln!("peak RSS after the image flood: {} MB", peak_rss_mb(pid));
+
+    // A correspondence flood: 30 messages of 50 000 matches each (1.2 MB on the wire, 10× the
+    // node's limit): each is held to the limit by its reader, counted, and what waits is bounded.
+    let flood: Vec<_> = (0..50_000)
+        .map(|k| {
+            let mut c = good.correspondences[k % good.correspondences.len()];
+            c.pixel.x += (k / good.correspondences.len()) as f64 * 1e-3;
+            c
+        })
+        .collect();
+    for k in 0..30 {
+        let msg = convert::correspondences_msg(s(40 + k), &good.camera_frame_id, &good.map_frame_id, &flood);
+        wire.corr.publish(msg).expect("publish correspondences");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    wire.wait_diag("error.correspondences_over_limit", |v| v >= 1, &log);
+    answers.push(("correspondence flood", good_frame_answers(&wire, &good, s(80), &log)));
+    eprintln!("peak RSS after the correspondence flood: {} MB", peak_rss_mb(pid));
 
     // An initial pose in a frame that is not the map's: counted, gates nothing.
     let truth = good.ground_truth.as_ref().and_then(|g| g.pose).unwrap_or_else(Isometry3::identity);
@@ -128,7 +147,7 @@ fn inner_live_node_floods() {
     let elsewhere = convert::pose_with_covariance_stamped(s(31), "nowhere", &far, &covariance);
     wire.initialpose.publish(elsewhere).expect("publish initial pose");
     std::thread::sleep(Duration::from_millis(300));
-    answers.push(("initial pose elsewhere", good_frame_answers(&wire, &good, s(32), &log)));
+    answers.push(("initial pose elsewhere", good_frame_answers(&wire, &good, s(82), &log)));
     wire.wait_diag("error.invalid_initialpose", |v| v >= 1, &log);
 
     let peak = peak_rss_mb(pid);

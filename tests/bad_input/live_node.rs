@@ -32,7 +32,7 @@ pub(super) struct Wire {
     ros: ros2_client::Node,
     _spinner: std::thread::JoinHandle<()>,
     info: ros2_client::Publisher<msgs::CameraInfo>,
-    corr: ros2_client::Publisher<msgs::Correspondences>,
+    pub(super) corr: ros2_client::Publisher<msgs::Correspondences>,
     prior: ros2_client::Publisher<msgs::Image>,
     image: ros2_client::Publisher<msgs::CompressedImage>,
     pub(super) map: ros2_client::Publisher<msgs::PointCloud2>,

@@ -10,8 +10,8 @@ mod parts;
 
 pub use localization::{localization_messages, LocalizationMessages};
 pub use parts::{
-    camera_info_part, compressed_image_msg, compressed_image_part, correspondences_part, depth_prior_part,
-    ground_truth_depth_part, ground_truth_pose_part, map_part, DecodedMap,
+    camera_info_part, compressed_image_msg, compressed_image_part, correspondences_part, correspondences_part_within,
+    depth_prior_part, ground_truth_depth_part, ground_truth_pose_part, map_part, DecodedMap,
 };
 
 use nalgebra::{Isometry3, Matrix6, Point2, Point3, Quaternion as NQuaternion, Translation3, UnitQuaternion};

@@ -10,7 +10,7 @@ use super::{
 };
 use crate::camera::{CameraModel, CameraModelError, Distortion};
 use crate::frame::{CameraImage, EncodedImage, FramePart, MapCloud, Stamp};
-use crate::limits::InputLimits;
+use crate::limits::{limit_correspondences, CorrespondenceFixes, InputLimits};
 use crate::msgs::{CameraInfo, CompressedImage, Correspondences, Image, MsgError, PointCloud2, PoseStamped};
 
 /// Refuses an image side over `limits.max_image_side` before anything is allocated for it.
@@ -48,6 +48,22 @@ pub fn correspondences_part(msg: Correspondences) -> Result<FramePart, MsgError>
         camera_frame_id: msg.header.frame_id,
         map_frame_id: msg.map_frame_id,
     })
+}
+
+/// Like [`correspondences_part`], held to the limits at once (scores clamped, duplicates
+/// merged over `merge_duplicates_above`, the best `max_correspondences` kept, as a frame's
+/// assembly does): the live node's readers hand on at most the limit however many a message
+/// carries, so what waits in its queues is bounded. What changed comes back to be counted.
+pub fn correspondences_part_within(
+    msg: Correspondences,
+    limits: &InputLimits,
+) -> Result<(FramePart, CorrespondenceFixes), MsgError> {
+    let mut part = correspondences_part(msg)?;
+    let fixes = match &mut part {
+        FramePart::Correspondences { correspondences, .. } => limit_correspondences(correspondences, limits),
+        _ => CorrespondenceFixes::default(),
+    };
+    Ok((part, fixes))
 }
 
 /// A `sensor_msgs/Image` (32FC1 or 16UC1) → the frame's monocular depth prior.
