@@ -1,7 +1,7 @@
 //! The last choice on a found pose, over every correspondence of the frame: the final
-//! refinement ([`FinalRefine`](super::refine::FinalRefine)), the arbitration between the pose and the search's other
-//! candidates ([`arbiter`]), the plain search confirming an unsure guided pose, and the step out
-//! of a wrong basin next to it. Each weighs a candidate by the same rule
+//! refinement ([`FinalRefine`](super::refine::FinalRefine)), the arbitration between the pose
+//! and the search's other candidates ([`arbiter`]), the plain search confirming an unsure guided
+//! pose, and the step out of a wrong basin next to it. Each weighs a candidate by the same rule
 //! ([`arbiter::Challenge::beats`]) and re-flags the inliers of the pose it keeps.
 
 use nalgebra::Isometry3;
