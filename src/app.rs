@@ -9,7 +9,7 @@ use nalgebra::Isometry3;
 
 use crate::bag::{BagFrames, BagMessages, BagWriter, FrameStream, ReadOptions, TopicMap};
 use crate::camera::CameraModel;
-use crate::eval::{inlier_mask, inlier_ratio, pose_errors, summarize, FrameMetrics, Summary};
+use crate::eval::{inlier_mask, inlier_ratio, nees, pose_errors, summarize, FrameMetrics, PoseErrors, Summary};
 use crate::frame::{Assembled, Correspondence, IncompleteFrame, Stamp};
 use crate::limits::InputLimits;
 use crate::msgs::{self, convert, from_cdr, DiagnosticArray, DiagnosticStatus, Header, KeyValue};
@@ -212,6 +212,8 @@ fn diagnostics_msg(stamp: Stamp, method: &str, values: &[(&str, String)], failur
 #[derive(Default)]
 struct Estimate {
     pose: Option<Isometry3<f64>>,
+    /// The covariance published with it (`pose_with_covariance`).
+    covariance: Option<nalgebra::Matrix6<f64>>,
     kept: Vec<Correspondence>,
     ms: Option<f64>,
     /// The diagnostics' reason when the frame has no pose.
@@ -253,6 +255,10 @@ fn read_estimates(est: &Path, topics: &TopicMap, max_record_bytes: u64) -> Resul
             let msg: msgs::PoseStamped = from_cdr(&m.data).with_context(decode_err)?;
             let pose = convert::isometry_from_pose(&msg.pose).with_context(decode_err)?;
             by_stamp.entry(convert::stamp(&msg.header)).or_default().pose = Some(pose);
+        } else if topic == topics.pose_with_covariance {
+            let msg: msgs::PoseWithCovarianceStamped = from_cdr(&m.data).with_context(decode_err)?;
+            let covariance = convert::covariance_matrix(&msg.pose);
+            by_stamp.entry(convert::stamp(&msg.header)).or_default().covariance = Some(covariance);
         } else if topic == topics.output_correspondences {
             let msg: msgs::Correspondences = from_cdr(&m.data).with_context(decode_err)?;
             let kept = convert::correspondences_from_msg(&msg).with_context(decode_err)?;
@@ -323,8 +329,12 @@ pub fn evaluate_bags(input: &Path, ests: &[std::path::PathBuf], params: &AppPara
         for (k, est) in estimates.iter_mut().enumerate() {
             let e = est.by_stamp.remove(&frame.stamp);
             let (kept, pose, ms) = e.as_ref().map_or((&[][..], None, None), |e| (&e.kept[..], e.pose, e.ms));
+            let covariance = e.as_ref().and_then(|e| e.covariance);
             let mask = inlier_mask(kept, &frame.intrinsics, gt_pose, gt_depth);
-            let errors = pose.map(|p| pose_errors(&p, gt_pose, &frame.intrinsics, gt_depth));
+            let errors = pose.map(|p| PoseErrors {
+                nees: covariance.and_then(|c| nees(&p, gt_pose, &c)),
+                ..pose_errors(&p, gt_pose, &frame.intrinsics, gt_depth)
+            });
             if errors.is_none() {
                 let reason = match e.as_ref().and_then(|e| e.failure.as_deref()) {
                     Some(f) => format!("failed: {}", reason_class(f)),

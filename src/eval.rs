@@ -15,7 +15,7 @@
 //! * false-pose rate — the share of the published poses that are wrong (not registered): a
 //!   likely-wrong pose published as a pose is worse than none.
 
-use nalgebra::{Isometry3, Matrix3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3};
 use serde::Serialize;
 
 use crate::frame::Correspondence;
@@ -72,6 +72,8 @@ pub struct PoseErrors {
     pub translation_m: f64,
     /// RMSE of the frame's ground-truth-depth points under both poses.
     pub rmse_m: f64,
+    /// The error's NEES under the published covariance ([`nees`]), when one was published.
+    pub nees: Option<f64>,
 }
 
 impl PoseErrors {
@@ -102,7 +104,25 @@ pub fn pose_errors(est: &Isometry3<f64>, gt: &Isometry3<f64>, k: &Intrinsics, gt
         }
     }
     let rmse_m = if count > 0 { (sum / count as f64).sqrt() } else { f64::NAN };
-    PoseErrors { rotation_deg, translation_m, rmse_m }
+    PoseErrors { rotation_deg, translation_m, rmse_m, nees: None }
+}
+
+/// χ² with 6 degrees of freedom at 0.95: an error inside a covariance's 95 % ellipsoid has a
+/// NEES below it.
+pub const CHI2_6DOF_95: f64 = 12.5916;
+
+/// The normalized estimation error squared `eᵀ Σ⁻¹ e` of the camera-to-map pose `est` against
+/// `gt` under `covariance`, in the pipeline's parameterisation (ROS order `(x, y, z, rot x,
+/// rot y, rot z)`, perturbed in the map frame: `p_gt = p + δp`, `R_gt = exp([δθ]×)·R`). A
+/// calibrated covariance gives NEES ~ χ²₆ (mean 6, 95 % below [`CHI2_6DOF_95`]). `None` when the
+/// covariance is not positive definite.
+pub fn nees(est: &Isometry3<f64>, gt: &Isometry3<f64>, covariance: &Matrix6<f64>) -> Option<f64> {
+    let dp = gt.translation.vector - est.translation.vector;
+    let dtheta = (gt.rotation * est.rotation.inverse()).scaled_axis();
+    let e = nalgebra::Vector6::new(dp.x, dp.y, dp.z, dtheta.x, dtheta.y, dtheta.z);
+    let cholesky = nalgebra::Cholesky::new(*covariance)?;
+    let value = e.dot(&cholesky.solve(&e));
+    value.is_finite().then_some(value)
 }
 
 /// One evaluated frame.
@@ -146,6 +166,13 @@ pub struct Summary {
     pub ms_per_frame: Option<f64>,
     #[serde(rename = "median_ms")]
     pub median_ms: Option<f64>,
+    /// Published poses with a covariance whose true pose lies inside its 95 % ellipsoid, %
+    /// (a calibrated covariance: 95); `None` without covariances.
+    #[serde(rename = "covariance_95")]
+    pub covariance_95: Option<f64>,
+    /// Median NEES over those poses (a calibrated covariance: ~5.3, χ²₆'s median).
+    #[serde(rename = "median_nees")]
+    pub median_nees: Option<f64>,
 }
 
 pub fn summarize(rows: &[FrameMetrics]) -> Summary {
@@ -154,6 +181,7 @@ pub fn summarize(rows: &[FrameMetrics]) -> Summary {
     let rot: Vec<f64> = with_pose.iter().map(|e| e.rotation_deg).collect();
     let trans: Vec<f64> = with_pose.iter().map(|e| e.translation_m).collect();
     let ms: Vec<f64> = rows.iter().filter_map(|r| r.ms).collect();
+    let nees: Vec<f64> = with_pose.iter().filter_map(|e| e.nees).collect();
     Summary {
         frames: n,
         ir: if n > 0 { 100.0 * rows.iter().map(|r| r.inlier_ratio).sum::<f64>() / n as f64 } else { 0.0 },
@@ -167,6 +195,9 @@ pub fn summarize(rows: &[FrameMetrics]) -> Summary {
             .then(|| 100.0 * with_pose.iter().filter(|e| !e.registered()).count() as f64 / with_pose.len() as f64),
         ms_per_frame: mean(&ms),
         median_ms: median(&ms),
+        covariance_95: (!nees.is_empty())
+            .then(|| 100.0 * nees.iter().filter(|&&v| v <= CHI2_6DOF_95).count() as f64 / nees.len() as f64),
+        median_nees: median(&nees),
     }
 }
 
@@ -190,8 +221,20 @@ pub fn format_table(rows: &[(String, Summary)]) -> String {
     let fmt = |v: Option<f64>, p: usize| v.map_or_else(|| "-".to_string(), |x| format!("{x:.p$}"));
     let width = rows.iter().map(|(name, _)| name.len()).max().unwrap_or(6).max(6);
     let mut out = format!(
-        "{:<width$}  {:>6}  {:>6}  {:>6}  {:>7}  {:>5}  {:>8}  {:>7}  {:>7}  {:>8}  {:>9}\n",
-        "method", "frames", "IR %", "RR %", "avail %", "FP %", "MRE deg", "MTE m", "MedRE", "MedTE m", "ms/frame"
+        "{:<width$}  {:>6}  {:>6}  {:>6}  {:>7}  {:>5}  {:>8}  {:>7}  {:>7}  {:>8}  {:>9}  {:>6}  {:>6}\n",
+        "method",
+        "frames",
+        "IR %",
+        "RR %",
+        "avail %",
+        "FP %",
+        "MRE deg",
+        "MTE m",
+        "MedRE",
+        "MedTE m",
+        "ms/frame",
+        "cov95%",
+        "NEES"
     );
     for (name, s) in rows {
         // The raw matches' row has no poses: neither availability nor false poses.
@@ -201,7 +244,7 @@ pub fn format_table(rows: &[(String, Summary)]) -> String {
             None => (format!("{:.1}", s.availability), "-".into()),
         };
         out += &format!(
-            "{:<width$}  {:>6}  {:>6.2}  {:>6.2}  {:>7}  {:>5}  {:>8}  {:>7}  {:>7}  {:>8}  {:>9}\n",
+            "{:<width$}  {:>6}  {:>6.2}  {:>6.2}  {:>7}  {:>5}  {:>8}  {:>7}  {:>7}  {:>8}  {:>9}  {:>6}  {:>6}\n",
             name,
             s.frames,
             s.ir,
@@ -216,6 +259,8 @@ pub fn format_table(rows: &[(String, Summary)]) -> String {
                 (Some(med), Some(mean)) => format!("{med:.2} ({mean:.2})"),
                 _ => "-".into(),
             },
+            fmt(s.covariance_95, 1),
+            fmt(s.median_nees, 1),
         );
     }
     out
@@ -237,6 +282,32 @@ mod tests {
             Isometry3::from_parts(Translation3::new(1.0, 2.0, 3.0), UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3));
         let e = pose_errors(&pose, &pose, &k(), &depth);
         assert!(e.rotation_deg < 1e-6 && e.translation_m < 1e-12 && e.rmse_m < 1e-12);
+    }
+
+    /// NEES in the pipeline's parameterisation: a 0.1 m offset along x under σ = 0.1 m is 1, a
+    /// 0.01 rad turn about z under σ = 0.01 rad is 1; a covariance that is not positive definite
+    /// gives none; the summary counts the poses inside the 95 % ellipsoid.
+    #[test]
+    fn nees_weighs_the_error_by_the_published_covariance() {
+        let gt =
+            Isometry3::from_parts(Translation3::new(1.0, 2.0, 3.0), UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3));
+        let sigma = Matrix6::from_diagonal(&nalgebra::Vector6::new(0.01, 0.01, 0.01, 1e-4, 1e-4, 1e-4));
+        let shifted = Isometry3::from_parts(Translation3::new(0.9, 2.0, 3.0), gt.rotation);
+        assert!((nees(&shifted, &gt, &sigma).unwrap() - 1.0).abs() < 1e-9);
+        // R_gt = exp([δθ]×)·R_est with δθ = 0.01 about the map's z.
+        let turned =
+            Isometry3::from_parts(gt.translation, UnitQuaternion::from_euler_angles(0.0, 0.0, -0.01) * gt.rotation);
+        assert!((nees(&turned, &gt, &sigma).unwrap() - 1.0).abs() < 1e-6);
+        assert_eq!(nees(&gt, &gt, &Matrix6::zeros()), None);
+        let depth = DepthImage::new(64, 48, vec![2.0; 64 * 48]);
+        let row = |stamp, est: &Isometry3<f64>, scale: f64| {
+            let errors = PoseErrors { nees: nees(est, &gt, &(sigma * scale)), ..pose_errors(est, &gt, &k(), &depth) };
+            FrameMetrics { stamp, inlier_ratio: 1.0, errors: Some(errors), ms: None }
+        };
+        // NEES 1 (inside) and 100 (outside: a covariance 100× too small).
+        let s = summarize(&[row(0, &shifted, 1.0), row(1, &shifted, 0.01)]);
+        assert_eq!(s.covariance_95, Some(50.0));
+        assert!((s.median_nees.unwrap() - 50.5).abs() < 1e-6);
     }
 
     #[test]
@@ -273,7 +344,8 @@ mod tests {
 
     #[test]
     fn summary_matches_reference_conventions() {
-        let e = |r: f64, rmse: f64| Some(PoseErrors { rotation_deg: r, translation_m: r / 10.0, rmse_m: rmse });
+        let e =
+            |r: f64, rmse: f64| Some(PoseErrors { rotation_deg: r, translation_m: r / 10.0, rmse_m: rmse, nees: None });
         let rows = vec![
             FrameMetrics { stamp: 0, inlier_ratio: 0.5, errors: e(1.0, 0.05), ms: Some(2.0) },
             FrameMetrics { stamp: 1, inlier_ratio: 0.0, errors: None, ms: Some(4.0) },

@@ -216,7 +216,7 @@ mod tests {
     use crate::eval::{FrameMetrics, PoseErrors};
 
     fn scored(k: usize, rmse: Option<f64>) -> ScoredFrame {
-        let errors = rmse.map(|r| PoseErrors { rotation_deg: r, translation_m: r, rmse_m: r });
+        let errors = rmse.map(|r| PoseErrors { rotation_deg: r, translation_m: r, rmse_m: r, nees: None });
         ScoredFrame {
             frame_index: k,
             metrics: FrameMetrics { stamp: k as i64, inlier_ratio: 0.0, errors, ms: None },

@@ -106,7 +106,8 @@ fn table(raw: &Summary, scored: &ScoredRuns) -> String {
     let opt = |v: Option<f64>, p: usize| v.map_or_else(|| "–".to_string(), |x| format!("{x:.p$}"));
     let mut out = String::from(
         "<table><tr><th>method</th><th>frames</th><th>IR %</th><th>RR %</th><th>available %</th>\
-         <th>false poses %</th><th>MRE °</th><th>MTE m</th><th>MedRE °</th><th>MedTE m</th><th>ms/frame</th></tr>\n",
+         <th>false poses %</th><th>MRE °</th><th>MTE m</th><th>MedRE °</th><th>MedTE m</th><th>ms/frame</th>\
+         <th>in 95 % ellipsoid %</th><th>median NEES</th></tr>\n",
     );
     let _ = writeln!(
         out,
@@ -125,7 +126,7 @@ fn table(raw: &Summary, scored: &ScoredRuns) -> String {
             out,
             "<tr><td><span class=\"swatch\" style=\"background:rgb({},{},{})\"></span>{}</td><td>{}</td>\
              <td>{:.2}</td><td>{:.2}</td><td>{:.1}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\
-             <td>{}</td></tr>",
+             <td>{}</td><td>{}</td><td>{}</td></tr>",
             c.0,
             c.1,
             c.2,
@@ -139,7 +140,9 @@ fn table(raw: &Summary, scored: &ScoredRuns) -> String {
             opt(s.mte, 3),
             opt(s.med_re, 3),
             opt(s.med_te, 3),
-            ms
+            ms,
+            opt(s.covariance_95, 1),
+            opt(s.median_nees, 1)
         );
     }
     out + "</table>\n"

@@ -252,7 +252,7 @@ mod tests {
             metrics: FrameMetrics {
                 stamp: k as i64,
                 inlier_ratio: 0.5,
-                errors: rmse.map(|r| PoseErrors { rotation_deg: 1.0, translation_m: r, rmse_m: r }),
+                errors: rmse.map(|r| PoseErrors { rotation_deg: 1.0, translation_m: r, rmse_m: r, nees: None }),
                 ms: Some(3.0),
             },
             record: FrameRecord {
