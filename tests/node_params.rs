@@ -101,6 +101,23 @@ impl ParamClients {
     }
 }
 
+/// A copy of the shipped model in `dir` whose metadata sets `constant` (`key=value`), by
+/// `training/stamp_metadata.py` (plain Python, no package; the weights are the shipped model's).
+fn restamped_model(dir: &Path, constant: &str) -> std::path::PathBuf {
+    let out = dir.join("restamped.onnx");
+    let python = common::python().unwrap_or_else(|| "python3".into());
+    let stamped = std::process::Command::new(python)
+        .arg(common::manifest().join("training/stamp_metadata.py"))
+        .arg(common::manifest().join("models/angle_i2p.onnx"))
+        .arg("--out")
+        .arg(&out)
+        .args(["--set", constant])
+        .output()
+        .expect("run stamp_metadata.py");
+    assert!(stamped.status.success(), "{}", String::from_utf8_lossy(&stamped.stderr));
+    out
+}
+
 #[test]
 fn live_ros_parameters_rosout_and_clock() {
     run_in_netns("inner_ros_parameters_rosout_and_clock");
@@ -122,7 +139,11 @@ fn inner_ros_parameters_rosout_and_clock() {
     let params = params.to_str().expect("utf-8 path");
     let (log5, log6) = (tmp.path().join("cam5.log"), tmp.path().join("cam6.log"));
     let logs = [log5.as_path(), log6.as_path()];
-    let _cam5 = start_node(&log5, &["-r", "__ns:=/cam5", "--params-file", params, "-p", "use_sim_time:=true"]);
+    // /cam5 runs a model whose metadata says it was calibrated with missing_confidence 0.5.
+    let model = restamped_model(tmp.path(), "missing_confidence=0.5");
+    let model = format!("network.model_path:={}", model.display());
+    let cam5_args = ["-r", "__ns:=/cam5", "--params-file", params, "-p", "use_sim_time:=true", "-p", &model];
+    let _cam5 = start_node(&log5, &cam5_args);
     let _cam6 = start_node(&log6, &["-r", "__ns:=/cam6", "--disable-rosout-logs"]);
 
     let context = dds::context().expect("context");
@@ -165,6 +186,13 @@ fn inner_ros_parameters_rosout_and_clock() {
             ParameterValue::NotSet
         ]
     );
+
+    // The model's constants are what `ros2 param get network.*` says once it is loaded.
+    let mut shown = ParameterValue::NotSet;
+    netns::wait_for("network.missing_confidence shows the model's 0.5", &logs, || {
+        shown = params.get(&["network.missing_confidence"], &log5).remove(0);
+        shown == ParameterValue::Double(0.5)
+    });
 
     // A live parameter changes; a read-only one and a bad value are refused with the reason.
     let ok = params.set("node.min_rate_hz", ParameterValue::Double(5.0), &log5);

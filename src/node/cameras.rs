@@ -149,6 +149,9 @@ struct CameraRun {
 pub struct Cameras {
     runs: Vec<CameraRun>,
     map: MapInbox,
+    /// The parameters the localizers run with: the params', the model's constants
+    /// (`network.*`, from its metadata) in place of the params' own.
+    localizer_params: Option<crate::params::LocalizerParams>,
 }
 
 impl Cameras {
@@ -165,6 +168,8 @@ impl Cameras {
                 .with_image_limits(&cx.rules.limits);
             made.push((c, localizer, outputs));
         }
+        // Every camera loads the same model: its constants (`network.*`) are the first one's.
+        let localizer_params = made.first().map(|(_, localizer, _)| localizer.params().clone());
         let runs = made
             .into_iter()
             .map(|(c, localizer, outputs)| {
@@ -177,7 +182,7 @@ impl Cameras {
             })
             .collect();
         let map = MapInbox::new(cx.swap.clone(), cx.params.verify.index_settings());
-        Ok(Self { runs, map })
+        Ok(Self { runs, map, localizer_params })
     }
 
     /// Handles one input that arrived at `now`: a camera's goes to its ingest; the node's map
@@ -202,6 +207,11 @@ impl Cameras {
                 warn("a frame part without its camera (ignored)");
             }
         }
+    }
+
+    /// The parameters the localizers run with (`None` without a camera).
+    pub fn localizer_params(&self) -> Option<&crate::params::LocalizerParams> {
+        self.localizer_params.as_ref()
     }
 
     /// Counts a problem of the node's own inputs in every camera's status.

@@ -85,6 +85,11 @@ impl Configured {
         Ok(Self { rx, readers, cameras, diagnostics, resend, origin: Instant::now() })
     }
 
+    /// The parameters the localizers run with (the model's constants in `network.*`).
+    pub fn localizer_params(&self) -> Option<&crate::params::LocalizerParams> {
+        self.cameras.localizer_params()
+    }
+
     /// The next input of the readers (`None`: every reader is gone).
     pub async fn next_input(&mut self) -> Option<Routed> {
         self.rx.recv().await

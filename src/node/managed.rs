@@ -23,6 +23,7 @@ use super::configured::Configured;
 use super::lifecycle::{self, Activity, CallbackReturn, Lifecycle, LifecycleError, State};
 use super::lifecycle_services::{ChangeRequest, LifecycleServices};
 use super::log::{info, lock, warn};
+use super::ros_params::LiveParams;
 use super::setup::{log_started, Setup};
 
 /// Why a change of state did not happen.
@@ -42,14 +43,17 @@ pub struct Managed {
     context: Context,
     /// What configure made (inactive and active states).
     pub configured: Option<Configured>,
+    /// The node's parameters (configure shows the model's constants there).
+    live: LiveParams,
 }
 
 impl Managed {
     /// Serves the lifecycle on `node`; the node is unconfigured.
-    pub fn new(context: &Context, node: &mut Node, s: &Setup) -> anyhow::Result<Self> {
+    pub fn new(context: &Context, node: &mut Node, s: &Setup, live: LiveParams) -> anyhow::Result<Self> {
         let state = Arc::new(Mutex::new(Lifecycle::default()));
         let services = LifecycleServices::serve(node, &s.names, &state)?;
-        Ok(Self { state, services, active: Activity::default(), context: context.clone(), configured: None })
+        let context = context.clone();
+        Ok(Self { state, services, active: Activity::default(), context, configured: None, live })
     }
 
     pub fn current(&self) -> State {
@@ -140,9 +144,27 @@ impl Managed {
 
     fn on_configure(&mut self, node: &mut Node, s: &Setup) -> Result<(), String> {
         let configured = Configured::configure(&self.context, node, s, &self.active).map_err(|e| format!("{e:#}"))?;
+        if let Some(running) = configured.localizer_params() {
+            self.show_running(node, running);
+        }
         self.configured = Some(configured);
         log_started(s, &self.context, &s.names.fully_qualified());
         Ok(())
+    }
+
+    /// The parameters the localizers run with on the node's parameter services: the model's
+    /// constants (`network.*`, from its metadata) replace the params' values they overrode.
+    fn show_running(&self, node: &mut Node, running: &crate::params::LocalizerParams) {
+        let changed = match self.live.adopt(running) {
+            Ok(changed) => changed,
+            Err(e) => return warn(format!("the model's constants are not shown as parameters: {e}")),
+        };
+        for p in changed {
+            match node.set_parameter(&p.name, p.value.clone()) {
+                Ok(()) => info(format!("parameter {} is {:?}, the model's", p.name, p.value)),
+                Err(e) => warn(format!("parameter {}: the model's value not shown: {e}", p.name)),
+            }
+        }
     }
 
     async fn release(&mut self, s: &Setup) {

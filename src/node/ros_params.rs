@@ -169,6 +169,18 @@ impl LiveParams {
         Ok(changed)
     }
 
+    /// The localizers' parameters as loaded (`running`: the model's constants in place of the
+    /// params' `network.*`) become the current ones; the parameters whose value that changed,
+    /// to set on the node, so `ros2 param get network.*` says what the model runs with.
+    pub fn adopt(&self, running: &crate::params::LocalizerParams) -> Result<Vec<Parameter>, ParamError> {
+        let mut current = lock(&self.current);
+        let before = declared(&current)?;
+        current.localizer = running.clone();
+        let after = declared(&current)?;
+        let unchanged = |p: &Parameter| before.iter().any(|b| b.name == p.name && b.value == p.value);
+        Ok(after.into_iter().filter(|p| !unchanged(p)).collect())
+    }
+
     /// Sets `name` (checked again) and applies it where it acts; true when the value changed.
     pub fn apply(&self, name: &str, value: &ParameterValue) -> Result<bool, ParamError> {
         let changed = self.check(name, value)?;

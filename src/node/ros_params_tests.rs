@@ -93,3 +93,22 @@ fn other_parameters_are_read_only_and_bad_values_are_refused() {
     assert!(live.apply("node.min_rate_hz", &ParameterValue::Double(-1.0)).is_err());
     assert_eq!(live.apply("node.min_rate_hz", &ParameterValue::Double(1.0)), Ok(false));
 }
+
+/// The model's constants become the current values: `adopt` names what changed, and setting it
+/// on the node then passes the read-only check (it changes nothing more).
+#[test]
+fn the_models_constants_are_adopted_and_then_settable_as_they_are() {
+    let params = AppParams::default();
+    let (live, _) = live(&params);
+    let mut running = params.localizer.clone();
+    running.network.missing_confidence = 0.5;
+    let changed = live.adopt(&running).expect("adopt");
+    assert_eq!(changed.len(), 1, "{changed:?}");
+    assert_eq!(changed[0].name, "network.missing_confidence");
+    assert_eq!(changed[0].value, ParameterValue::Double(0.5));
+    assert!(live.check(&changed[0].name, &changed[0].value).is_ok());
+    assert_eq!(live.apply(&changed[0].name, &changed[0].value).ok(), Some(false));
+    // Another value is still refused: the parameter is read-only.
+    assert!(live.check("network.missing_confidence", &ParameterValue::Double(0.3)).is_err());
+    assert!(live.adopt(&running).expect("again").is_empty());
+}

@@ -68,7 +68,7 @@ pub async fn run_node(names: Names, resolved: AppParams, record: Option<PathBuf>
     let spinner = dds::spawn_spinner(&mut node)?;
     let _clock_reader = clock::subscribe(&mut node, &s.clock)?;
     // 3. The lifecycle: unconfigured, or configured and active at once (`node.autostart`).
-    let mut managed = Managed::new(&context, &mut node, &s)?;
+    let mut managed = Managed::new(&context, &mut node, &s, live.clone())?;
     if s.np.autostart {
         managed.startup(&mut node, &s).await?;
     } else {
