@@ -88,23 +88,16 @@ impl Localizer {
         margin: f64,
         solution: &mut PnpSolution,
     ) {
-        let refine = &self.params.final_refine;
-        let pnp = self.pnp_params(frame);
-        let support = |pose: &Isometry3<f64>| {
-            arbiter::support(&frame.intrinsics, &frame.correspondences, pose, pnp.threshold_px, pnp.coverage_cell_px)
-        };
-        let (incumbent, incumbent_inliers) = support(&solution.pose);
-        let pool = std::mem::take(&mut solution.alternatives).into_iter().take(refine.alternatives);
-        let candidates = pool.chain(poses.iter().copied()).map(|start| {
-            let mut candidate = PnpSolution { pose: start, ..solution.clone() };
-            self.refine_on_all(frame, &mut candidate);
-            let (support, inliers) = support(&candidate.pose);
-            let shared = arbiter::shared_inliers(&inliers, &incumbent_inliers);
-            (arbiter::Challenge { support, shared }, candidate)
-        });
-        let Some(challenger) = arbiter::challenger(incumbent, candidates, margin) else { return };
-        *solution = challenger;
-        self.reflag(frame, solution, Flagged::Kept);
+        let pool = std::mem::take(&mut solution.alternatives).into_iter().take(self.params.final_refine.alternatives);
+        let candidates: Vec<PnpSolution> = pool
+            .chain(poses.iter().copied())
+            .map(|start| {
+                let mut candidate = PnpSolution { pose: start, ..solution.clone() };
+                self.refine_on_all(frame, &mut candidate);
+                candidate
+            })
+            .collect();
+        self.weigh(frame, solution, candidates, margin, Flagged::Kept);
     }
 
     /// The chosen pose out of a wrong basin next to it ([`FinalRefine::out_of_basin`](super::refine::FinalRefine::out_of_basin)): the
@@ -113,14 +106,33 @@ impl Localizer {
     /// pose 2.8° off with 43 inliers leaves its basin for one 0.8° off with 48; on the extreme
     /// ones, poses 2–4° off come within 1–2°.
     pub(super) fn out_of_basin(&self, frame: &Frame, solution: &mut PnpSolution, flagged: Flagged) {
-        let (k, refine, pnp) = (&frame.intrinsics, &self.params.final_refine, self.pnp_params(frame));
-        let correspondences = &frame.correspondences;
+        let refine = &self.params.final_refine;
         let Some(candidate) = refine.out_of_basin(&self.refine_frame(frame), solution) else { return };
-        let support = |pose| arbiter::support(k, correspondences, pose, pnp.threshold_px, pnp.coverage_cell_px);
-        let ((incumbent, incumbent_inliers), (found, inliers)) = (support(&solution.pose), support(&candidate.pose));
-        let challenge =
-            arbiter::Challenge { support: found, shared: arbiter::shared_inliers(&inliers, &incumbent_inliers) };
-        if let Some(better) = arbiter::challenger(incumbent, [(challenge, candidate)], refine.switch_margin) {
+        self.weigh(frame, solution, [candidate], refine.switch_margin, flagged);
+    }
+
+    /// `candidates` (refined on every correspondence) against `solution` by the last choice's
+    /// rule ([`arbiter::challenger`]: support among every match, inliers shared with it, cells
+    /// over `margin`); the winner replaces it, its inliers re-flagged over `flagged`.
+    fn weigh(
+        &self,
+        frame: &Frame,
+        solution: &mut PnpSolution,
+        candidates: impl IntoIterator<Item = PnpSolution>,
+        margin: f64,
+        flagged: Flagged,
+    ) {
+        let pnp = self.pnp_params(frame);
+        let support = |pose: &Isometry3<f64>| {
+            arbiter::support(&frame.intrinsics, &frame.correspondences, pose, pnp.threshold_px, pnp.coverage_cell_px)
+        };
+        let (incumbent, incumbent_inliers) = support(&solution.pose);
+        let challenges = candidates.into_iter().map(|candidate| {
+            let (support, inliers) = support(&candidate.pose);
+            let shared = arbiter::shared_inliers(&inliers, &incumbent_inliers);
+            (arbiter::Challenge { support, shared }, candidate)
+        });
+        if let Some(better) = arbiter::challenger(incumbent, challenges, margin) {
             *solution = better;
             self.reflag(frame, solution, flagged);
         }
