@@ -22,9 +22,13 @@ for bag in "${bags[@]}"; do
   name=$(basename "$bag")
   extra=()
   [[ $name == *disparity* ]] && extra=(-p depth_kind:=disparity)
-  for method in angle-i2p consistency ransac; do
+  # angle-i2p-alone: the default method with frames alone (tracking off), whose outputs must
+  # stay those of the method before tracking.
+  for method in angle-i2p angle-i2p-alone consistency ransac; do
     out="$tmp/$name-$method"
-    "$bin" replay "$bag" --out "$out" --method "$method" "${extra[@]}" > /dev/null 2>&1
+    run=(--method "${method%-alone}")
+    [[ $method == *-alone ]] && run+=(-p tracking.enabled:=false)
+    "$bin" replay "$bag" --out "$out" "${run[@]}" "${extra[@]}" > /dev/null 2>&1
     echo "$name $method $("$py" scripts/output_digests.py "$out")" >> "$tmp/digests"
     rm -rf "$out"
   done

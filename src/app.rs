@@ -178,6 +178,9 @@ pub fn localization_diagnostics(loc: &Localization) -> DiagnosticArray {
     if let Some(nfa) = loc.log10_nfa {
         values.push(("log10_nfa", format!("{nfa:.2}")));
     }
+    if let Some(track) = loc.track {
+        values.push(("track", track.name().to_string()));
+    }
     let failure = loc.failure.as_ref().map(|f| f.to_string());
     diagnostics_msg(loc.stamp, loc.method.name(), &values, failure.as_deref())
 }

@@ -53,6 +53,8 @@ pub struct Stats {
     /// cascade's fast path (see [`Stats::frame_evidence`]).
     prior_quality: VecDeque<f64>,
     fast_path: VecDeque<bool>,
+    /// The last localized frame's standing to the track (`None` with tracking off).
+    track: Option<crate::pipeline::TrackState>,
     /// (time, frames_in, frames_localized) at the last report, for rates.
     last_report: (Instant, u64, u64),
     /// Inputs and outcomes over the recent window: the levels.
@@ -82,6 +84,7 @@ impl Default for Stats {
             processing_ms: VecDeque::new(),
             prior_quality: VecDeque::new(),
             fast_path: VecDeque::new(),
+            track: None,
             last_report: (now, 0, 0),
             health: Health::default(),
         }
@@ -154,6 +157,11 @@ impl Stats {
         self.fast_path.push_back(fast_path);
     }
 
+    /// The last localized frame's standing to the track: `tracking`, `relocalized` or `lost`.
+    pub fn frame_track(&mut self, track: Option<crate::pipeline::TrackState>) {
+        self.track = track;
+    }
+
     /// The node's statuses: `<node_name>: localization` (cumulative counts, rates since the
     /// previous call, a level over the recent window) and one per input topic.
     pub fn report(&mut self, stamp: Stamp, node_name: &str, hardware_id: &str) -> DiagnosticArray {
@@ -182,6 +190,7 @@ impl Stats {
             ("prior_quality_median", median(&quality).map(|v| format!("{v:.3}")).unwrap_or_default()),
             ("prior_quality_last", self.prior_quality.back().map(|v| format!("{v:.3}")).unwrap_or_default()),
             ("fast_path_share", fast_share.map(|v| format!("{v:.2}")).unwrap_or_default()),
+            ("track", self.track.map(|t| t.name().to_string()).unwrap_or_default()),
             ("maps_received", self.maps_received.to_string()),
             ("map_points", self.map_points.to_string()),
             ("maps_indexed", self.maps_indexed.to_string()),
@@ -235,11 +244,13 @@ mod tests {
         s.frame_evidence(Some(0.8), false);
         s.frame_evidence(None, true);
         s.count_tf("map_to_odom");
+        s.frame_track(Some(crate::pipeline::TrackState::Relocalized));
         let r = s.report(5, "angle_i2p", "/angle_i2p");
         assert_eq!(r.status[0].name, "angle_i2p: localization");
         assert_eq!(r.status[0].level, DiagnosticStatus::OK, "{}", r.status[0].message);
         assert_eq!(status_value(&r, "prior_quality_last"), Some("0.800"));
         assert_eq!(status_value(&r, "fast_path_share"), Some("0.50"));
+        assert_eq!(status_value(&r, "track"), Some("relocalized"));
         assert_eq!(status_value(&r, "dropped.queue_full"), Some("2"));
         assert_eq!(status_value(&r, "error.pnp"), Some("1"));
         assert_eq!(status_value(&r, "tf.map_to_odom"), Some("1"));

@@ -138,7 +138,8 @@ impl LocalizerParams {
     /// Checks every parameter of the core with a range; the first one outside it is the error.
     pub fn validate(&self) -> Result<(), InvalidParam> {
         self.validate_pnp()?;
-        self.validate_rejection()
+        self.validate_rejection()?;
+        real("tracking.gate", self.tracking.gate, Range::Positive)
     }
 
     fn validate_pnp(&self) -> Result<(), InvalidParam> {
@@ -272,6 +273,7 @@ mod tests {
             ("verify.min_support_share", Box::new(|p| p.localizer.verify.min_support_share = 1.5)),
             ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = 0.5)),
             ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = f64::INFINITY)),
+            ("tracking.gate", Box::new(|p| p.localizer.tracking.gate = 0.0)),
             ("spectral.keep_ratio", Box::new(|p| p.localizer.spectral.keep_ratio = 5.0)),
             ("spectral.max_nodes", Box::new(|p| p.localizer.spectral.max_nodes = 1)),
             ("verify.accept", Box::new(|p| p.localizer.verify.accept = 2.0)),

@@ -5,6 +5,7 @@ use nalgebra::{Isometry3, Matrix6};
 use serde::{Deserialize, Serialize};
 
 use super::cascade::FastPathCheck;
+use super::track::TrackState;
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::pnp::PnpError;
@@ -66,6 +67,14 @@ pub enum Failure {
     #[error("pose not sure enough to publish: log10 NFA {log10_nfa:.1} among every match, prior agreement {}",
         prior_quality.map_or_else(|| "unknown".to_string(), |q| format!("{q:.2}")))]
     Unsure { log10_nfa: f64, prior_quality: Option<f64> },
+    /// A pose was found whose support is not meaningful among every match and which the prior
+    /// confirms, but the track's prediction, which has proved itself, puts the camera elsewhere
+    /// ([`super::track`]).
+    #[error(
+        "pose not sure enough to publish: log10 NFA {log10_nfa:.1} among every match, and {angle_deg:.1}° from \
+        the track's prediction (agreement within {gate_deg:.1}°)"
+    )]
+    OffTrack { log10_nfa: f64, angle_deg: f64, gate_deg: f64 },
     /// The pose gate (`/initialpose`) is contradicted: a pose outside it is sure among every
     /// match and surer than the best inside it (if any), which is not published ([`super::gate`]).
     #[error("the pose gate is contradicted: a pose outside it has log10 NFA {outside_log10_nfa:.1} among every match, \
@@ -84,6 +93,7 @@ impl Failure {
             Failure::Rejection(_) => "rejection",
             Failure::Pnp(_) => "pnp",
             Failure::Unsure { .. } => "unsure",
+            Failure::OffTrack { .. } => "off_track",
             Failure::GateContradicted { .. } => "gate_contradicted",
         }
     }
@@ -133,6 +143,8 @@ pub struct Localization {
     /// match, however many stages it ran (the fast path's, then confirming or rescuing), and
     /// the search guided by the rejector on the kept matches.
     pub robust_passes: usize,
+    /// How the frame stands to the track (`None` with tracking off: frames alone).
+    pub track: Option<TrackState>,
     pub timings: StageTimings,
     pub failure: Option<Failure>,
 }
@@ -159,6 +171,7 @@ impl Localization {
             confirm_search: false,
             outside_gate_log10_nfa: None,
             robust_passes: 0,
+            track: None,
             timings: StageTimings::default(),
             failure: None,
         }
