@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
 """Side-by-side benchmark: angle-i2p's methods against PoseLib's LO-RANSAC, bag by bag, in one run.
 
-    side_by_side.py [BAG ...] [--synth PRESET ...] --out DIR [--methods default,ransac]
+    side_by_side.py [BAG ...] [--synth PRESET ...] --out DIR [--methods default,alone,ransac]
                     [--method consistency] [--params-file F] [-p NAME:=VALUE ...]
                     [--bag-param GLOB:NAME:=VALUE ...] [--rounds N] [--binary PATH] [--strict]
 
-For each bag: `angle-i2p replay` once per method (the default method, then `ransac`, plus any
-`--method`), `angle-i2p eval --json` on each output, and PoseLib 2.0.5's LO-RANSAC (P3P, <= 10k
+For each bag: `angle-i2p replay` once per method (the default method, tracking; the same with
+frames alone; then `ransac`, plus any `--method`), `angle-i2p eval --json` on each output, and PoseLib 2.0.5's LO-RANSAC (P3P, <= 10k
 iterations, >= 100, 8 px, success probability 0.9999) on the bag's raw correspondences, timed
 per frame around the estimate call alone. Prints one markdown table per bag (RR, MRE, MTE,
 median ms per frame, time relative to PoseLib, and the verdict against the acceptance criteria
@@ -54,8 +54,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("bags", nargs="*", type=pathlib.Path, help="rosbag2 directories (or bare .mcap files)")
     ap.add_argument("--out", type=pathlib.Path, required=True, help="directory for output bags and the JSON")
-    ap.add_argument("--methods", default="default,ransac",
-                    help="comma-separated replay methods; 'default' runs replay without --method (default: %(default)s)")
+    ap.add_argument("--methods", default="default,alone,ransac",
+                    help="comma-separated replay methods; 'default' runs replay without --method, 'alone' the "
+                         "default method with frames alone (tracking off) (default: %(default)s)")
     ap.add_argument("--method", action="append", default=[], help="one more replay method (repeatable)")
     ap.add_argument("--params-file", type=pathlib.Path, help="ROS 2 params file for every replay and eval")
     ap.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
@@ -159,11 +160,12 @@ class BagRuns:
         return self.out_dir / (name if round_index == 0 else f"{name}.round{round_index}")
 
     def replay(self, method: str, run_dir: pathlib.Path) -> list[str]:
-        """`angle-i2p replay` into `run_dir` (replaced) with `method` ('default': no --method); its arguments."""
+        """`angle-i2p replay` into `run_dir` (replaced) with `method` ('default': no --method; 'alone':
+        the default method with frames alone, tracking off); its arguments."""
         if run_dir.exists():
             shutil.rmtree(run_dir)
         run_dir.parent.mkdir(parents=True, exist_ok=True)
-        method_args = [] if method == "default" else ["--method", method]
+        method_args = {"default": [], "alone": ["-p", "tracking.enabled:=false"]}.get(method, ["--method", method])
         run([self.binary, "replay", self.bag, "--out", run_dir, *method_args, *self.param_args])
         return [*method_args, *self.param_args]
 
@@ -181,7 +183,7 @@ def replay_and_eval(ctx: BagRuns, method: str) -> dict:
     for f in ctx.frames:
         o = outputs.get(f.stamp, bag_scoring.OutputFrame(failure="no output for this frame"))
         rows.append(bag_scoring.frame_row(f, o.pose, o.ms, o.failure, kept=o.kept, pnp_inliers=o.pnp_inliers))
-    label = f"{name} (default)" if method == "default" else name
+    label = {"default": f"{name} (default)", "alone": f"{name} (frames alone)"}.get(method, name)
     return {"label": label, "method": name, "replay_args": replay_args, "output_bag": str(run_dir),
             "summary": summary, "eval_summary": summary, "rescored": bag_scoring.summarize(rows), "frames": rows}
 

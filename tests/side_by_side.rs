@@ -7,7 +7,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 mod common;
-use common::{binary, manifest, python, skip_or_fail};
+use common::{binary, manifest, onnx_runtime, python, skip_or_fail};
 
 fn side_by_side(python: &Path, out: &Path, extra: &[&str]) -> Output {
     Command::new(python)
@@ -196,4 +196,31 @@ fn a_synth_preset_is_made_and_benchmarked() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(stdout.contains("### synth-sift (sift tier, shared prior; 3 frames)"), "{stdout}");
     assert!(dir.path().join("bags/synth-sift/metadata.yaml").exists());
+}
+
+/// `--methods default,alone`: the default method tracking (its default) and with frames alone,
+/// each its own row (#35).
+#[test]
+fn tracked_and_frames_alone_are_rows_of_their_own() {
+    let Some(py) = eval_python() else { return };
+    if onnx_runtime().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(&py)
+        .arg(manifest().join("scripts/side_by_side.py"))
+        .args(["--synth", "sift", "--synth-frames", "3", "--methods", "default,alone", "--out"])
+        .arg(dir.path())
+        .arg("--binary")
+        .arg(binary())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(dir.path().join("side_by_side.json")).unwrap();
+    let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let runs = doc["bags"][0]["runs"].as_array().unwrap();
+    assert_eq!(runs[0]["label"], "angle-i2p (default)");
+    assert_eq!(runs[0]["replay_args"], serde_json::json!([]));
+    assert_eq!(runs[1]["label"], "angle-i2p (frames alone)");
+    assert_eq!(runs[1]["replay_args"], serde_json::json!(["-p", "tracking.enabled:=false"]));
 }
