@@ -9,7 +9,10 @@ use nalgebra::Isometry3;
 
 use crate::bag::{BagFrames, BagMessages, BagWriter, FrameStream, ReadOptions, TopicMap};
 use crate::camera::CameraModel;
-use crate::eval::{inlier_mask, inlier_ratio, nees, pose_errors, summarize, FrameMetrics, PoseErrors, Summary};
+use crate::eval::{
+    inlier_mask, inlier_ratio, jumps, nees, pose_errors, recovery, summarize, FrameMetrics, PoseErrors, Recovery,
+    Summary,
+};
 use crate::frame::{Assembled, Correspondence, IncompleteFrame, Stamp};
 use crate::limits::InputLimits;
 use crate::msgs::{self, convert, from_cdr, DiagnosticArray, DiagnosticStatus, Header, KeyValue};
@@ -231,6 +234,8 @@ pub struct Evaluation {
     /// Frames without a pose, by reason: `skipped: …` (dropped for bad input), `failed: …`
     /// (the method found none), `missing from the output`.
     pub no_pose: BTreeMap<String, usize>,
+    /// After the jumps of the ground truth (kidnaps), if any.
+    pub recovery: Recovery,
 }
 
 /// Scores of one `eval` run: the matcher's raw inlier ratio and one evaluation per output bag.
@@ -306,6 +311,7 @@ pub fn evaluate_bags(input: &Path, ests: &[std::path::PathBuf], params: &AppPara
     let mut rows: Vec<Vec<FrameMetrics>> = vec![Vec::new(); ests.len()];
     let mut no_pose: Vec<BTreeMap<String, usize>> = vec![BTreeMap::new(); ests.len()];
     let (mut raw_rows, mut without_ground_truth) = (Vec::new(), 0usize);
+    let mut track = Vec::new();
     let mut stream = FrameStream::open(input, topics, &params.limits)?.with_pixel_space(params.camera.pixels);
     while let Some(item) = stream.next_frame()? {
         let frame = match item {
@@ -327,6 +333,7 @@ pub fn evaluate_bags(input: &Path, ests: &[std::path::PathBuf], params: &AppPara
             without_ground_truth += 1;
             continue;
         };
+        track.push((frame.stamp, *gt_pose));
         let mask = inlier_mask(&frame.correspondences, &frame.intrinsics, gt_pose, gt_depth);
         raw_rows.push(FrameMetrics { stamp: frame.stamp, inlier_ratio: inlier_ratio(&mask), errors: None, ms: None });
         for (k, est) in estimates.iter_mut().enumerate() {
@@ -354,11 +361,18 @@ pub fn evaluate_bags(input: &Path, ests: &[std::path::PathBuf], params: &AppPara
         "{}: no frame with ground-truth pose and depth to score against",
         input.display()
     );
+    let jumps = jumps(&track);
     let evaluations = estimates
         .into_iter()
         .zip(rows)
         .zip(no_pose)
-        .map(|((est, frames), no_pose)| Evaluation { method: est.method, summary: summarize(&frames), frames, no_pose })
+        .map(|((est, frames), no_pose)| Evaluation {
+            method: est.method,
+            summary: summarize(&frames),
+            recovery: recovery(&frames, &jumps),
+            frames,
+            no_pose,
+        })
         .collect();
     Ok(EvalRun { raw: summarize(&raw_rows), evaluations, without_ground_truth })
 }
@@ -490,6 +504,18 @@ pub fn format_no_pose(evaluations: &[Evaluation], without_ground_truth: usize) -
             ev.method,
             ev.summary.frames,
             why.join("; ")
+        );
+    }
+    for ev in evaluations.iter().filter(|ev| ev.recovery.jumps > 0) {
+        let r = &ev.recovery;
+        out += &format!(
+            "{}: {} jump(s) of the camera: a correct pose again within {} frame(s), {} never recovered, {} wrong \
+             pose(s) published meanwhile\n",
+            ev.method,
+            r.jumps,
+            r.frames_to_recover_max.map_or_else(|| "-".to_string(), |n| n.to_string()),
+            r.unrecovered,
+            r.wrong_while_recovering
         );
     }
     if without_ground_truth > 0 {

@@ -368,6 +368,7 @@ fn evaluations_json(evaluations: &[app::Evaluation]) -> Result<String> {
             let mut row = serde_json::to_value(&ev.summary)?;
             if let Some(o) = row.as_object_mut() {
                 o.insert("no_pose".into(), serde_json::to_value(&ev.no_pose)?);
+                o.insert("recovery".into(), serde_json::to_value(&ev.recovery)?);
             }
             Ok((ev.method.clone(), row))
         })

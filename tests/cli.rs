@@ -25,6 +25,41 @@ fn synth_replay_eval_round_trip() {
     assert!(v["consistency"]["RR"].as_f64().unwrap() >= 50.0, "{json}");
 }
 
+/// A kidnapped camera (#35): `synth --preset hard+kidnap` jumps half its path across the room
+/// half-way through; replayed as a stream (tracking, the default), the first frame after the
+/// jump publishes a correct pose again (within the three frames) and no wrong pose in
+/// between, and `eval` finds the jump and says so (text and JSON).
+#[test]
+fn a_kidnapped_camera_relocalizes_and_eval_measures_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let (bag, out) = (dir.path().join("in"), dir.path().join("out"));
+    run_ok(
+        Command::new(binary())
+            .args(["synth", "--preset", "hard+kidnap", "--frames", "24", "--seed", "3", "--out"])
+            .arg(&bag),
+    );
+    let replay = Command::new(binary())
+        .arg("replay")
+        .arg(&bag)
+        .arg("--out")
+        .arg(&out)
+        .args(["--method", "consistency"])
+        .arg("--verbose")
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&replay.stderr);
+    assert!(replay.status.success(), "{log}");
+    assert!(log.contains(", relocalized") && log.contains(", tracking"), "every frame reports its track state:\n{log}");
+    let json = run_ok(Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&out).arg("--json"));
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let r = &v["consistency"]["recovery"];
+    assert_eq!(r["jumps"], 1, "{json}");
+    assert!(r["frames_to_recover_max"].as_u64().is_some_and(|n| n <= 3), "{json}");
+    assert_eq!((r["unrecovered"].as_u64(), r["wrong_while_recovering"].as_u64()), (Some(0), Some(0)), "{json}");
+    let text = run_ok(Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&out));
+    assert!(text.contains("1 jump(s) of the camera: a correct pose again within"), "{text}");
+}
+
 /// Without `--method` replay runs the default, the learned rejector (when ONNX Runtime is there).
 #[test]
 fn default_method_is_the_learned_rejector() {

@@ -10,8 +10,8 @@ pub const PRESETS: [&str; 4] = ["sift", "hard", "extreme", "easy"];
 /// Modifiers a tier may be joined with by `+` in [`SynthConfig::preset`]: the sensor and scene
 /// (`close`, `hd`, `wide`, `office`), the map (`small-map`, `large-map`) and the prior (`harsh`,
 /// `disparity`).
-pub const PRESET_MODIFIERS: [&str; 9] =
-    ["close", "hd", "wide", "small-map", "large-map", "harsh", "disparity", "building", "office"];
+pub const PRESET_MODIFIERS: [&str; 10] =
+    ["close", "hd", "wide", "small-map", "large-map", "harsh", "disparity", "building", "office", "kidnap"];
 /// Rooms per row of a building, at most.
 pub const MAX_BUILDING_ROOMS: usize = 32;
 /// Map points `synth` makes, at most.
@@ -126,6 +126,9 @@ pub struct SynthConfig {
     pub map_rotation_deg: [f64; 2],
     /// Range of a region's offset, metres.
     pub map_offset_m: [f64; 2],
+    /// A kidnapped camera: from this share of the frames on, the camera is half its path further
+    /// on (across the room, or the building), with nothing in the stream saying so; 0: never.
+    pub kidnap_at: f64,
 }
 
 impl Default for SynthConfig {
@@ -174,6 +177,7 @@ impl Default for SynthConfig {
             map_keyframe_m: 0.0,
             map_rotation_deg: [0.5, 1.5],
             map_offset_m: [0.01, 0.04],
+            kidnap_at: 0.0,
         }
     }
 }
@@ -194,7 +198,8 @@ impl SynthConfig {
     ///   and a map fused from 2 m keyframe regions each off by 0.5–1.5° and 1–4 cm, as maps built
     ///   from structure-from-motion poses are;
     /// * `harsh`: a metric-like prior with object-sized errors, far-depth compression, smeared
-    ///   edges and a ±20 % warp at an odd resolution; `disparity`: affine-invariant disparity.
+    ///   edges and a ±20 % warp at an odd resolution; `disparity`: affine-invariant disparity;
+    /// * `kidnap`: half-way through, the camera jumps half its path on (a kidnapped robot).
     pub fn preset(name: &str) -> Option<SynthConfig> {
         let name = name.trim().to_ascii_lowercase();
         let mut parts = name.split('+').map(str::trim);
@@ -244,6 +249,7 @@ impl SynthConfig {
                 ..self
             },
             "disparity" => SynthConfig { prior_kind: SynthPriorKind::Disparity, ..self },
+            "kidnap" => SynthConfig { kidnap_at: 0.5, ..self },
             "building" => super::building::preset(self),
             "office" => SynthConfig {
                 room_size: [9.0, 6.5, 2.8],
@@ -358,6 +364,7 @@ impl SynthConfig {
             map_keyframe_m: nonneg(self.map_keyframe_m, 0.0),
             map_rotation_deg: ordered(self.map_rotation_deg, d.map_rotation_deg, 10.0),
             map_offset_m: ordered(self.map_offset_m, d.map_offset_m, 1.0),
+            kidnap_at: unit(self.kidnap_at, 0.0),
         }
     }
 }

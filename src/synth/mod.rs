@@ -214,6 +214,8 @@ struct CameraPath {
     wobble: [f64; 4],
     frames: usize,
     route: Option<building::Route>,
+    /// The first frame of the kidnapped camera (half its path on), if any.
+    kidnap_frame: Option<usize>,
 }
 
 impl CameraPath {
@@ -231,15 +233,19 @@ impl CameraPath {
             ],
             frames: config.frames.max(1),
             route: None,
+            kidnap_frame: (config.kidnap_at > 0.0 && config.kidnap_at < 1.0)
+                .then(|| (config.kidnap_at * config.frames.max(1) as f64).round() as usize),
         }
     }
 
     /// Camera-to-map pose of the optical frame (x right, y down, z forward) of frame `k`.
     fn pose(&self, k: usize) -> Isometry3<f64> {
-        let phi = self.phase + std::f64::consts::TAU * k as f64 / self.frames as f64;
+        let kidnapped = self.kidnap_frame.is_some_and(|first| k >= first);
+        let along = (k as f64 / self.frames as f64 + if kidnapped { 0.5 } else { 0.0 }).fract();
+        let phi = self.phase + std::f64::consts::TAU * along;
         let [a, b, c, d] = self.wobble;
         let (position, yaw) = match &self.route {
-            Some(route) => route.at(k as f64 / self.frames as f64, 0.08 * (2.0 * phi + a).sin()),
+            Some(route) => route.at(along, 0.08 * (2.0 * phi + a).sin()),
             None => (
                 self.centre
                     + Vector3::new(self.radius * phi.cos(), self.radius * phi.sin(), 0.08 * (2.0 * phi + a).sin()),

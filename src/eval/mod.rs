@@ -13,13 +13,18 @@
 //! Beside them, what a user of the published poses sees (not in the reference evaluator):
 //! * availability — the share of frames that got a pose at all;
 //! * false-pose rate — the share of the published poses that are wrong (not registered): a
-//!   likely-wrong pose published as a pose is worse than none.
+//!   likely-wrong pose published as a pose is worse than none;
+//! * recovery after a jump of the camera (a kidnap, [`recovery`]): frames to a correct pose and
+//!   the wrong poses published meanwhile.
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3};
 use serde::Serialize;
 
 use crate::frame::Correspondence;
 use crate::geometry::{DepthImage, Intrinsics};
+
+mod recovery;
+pub use recovery::{jumps, recovery, Recovery, JUMP_FACTOR};
 
 /// Inlier distance of the IR metric (metres).
 pub const INLIER_THRESHOLD: f64 = 0.05;
