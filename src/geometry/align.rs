@@ -353,7 +353,9 @@ fn clearly_outside(len2: f64, map_len: f64, tol: f64) -> bool {
     len2 > high * high * (1.0 + MARGIN) || (low > 0.0 && len2 < low * low * (1.0 - MARGIN))
 }
 
-fn median(mut v: Vec<f64>) -> Option<f64> {
+/// The upper median of `v` (its middle value for an odd count, the upper of the two middle ones
+/// for an even one); `None` when empty.
+pub fn median(mut v: Vec<f64>) -> Option<f64> {
     if v.is_empty() {
         return None;
     }

@@ -267,13 +267,7 @@ fn push_bounded(values: &mut VecDeque<f64>, value: f64, kept: usize) {
 }
 
 fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
-    let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return None;
-    }
-    let mid = v.len() / 2;
-    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
-    Some(*m)
+    crate::geometry::align::median(values.filter(|x| x.is_finite()).collect())
 }
 
 #[cfg(test)]
