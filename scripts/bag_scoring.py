@@ -1,6 +1,6 @@
 """Reading localization bags with rosbags and scoring poses as `angle-i2p eval` does.
 
-The metric definitions are those of src/eval.rs (and of the reference evaluator it is tested
+The metric definitions are those of src/eval/mod.rs (and of the reference evaluator it is tested
 against): a frame is registered when the RMSE, over its ground-truth-depth points (every 4th
 pixel), between the points moved by the true and by the estimated camera-to-map pose is below
 0.1 m; MRE / MTE are mean rotation (degrees) and translation (metres) errors over the frames

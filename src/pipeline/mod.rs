@@ -26,7 +26,7 @@ mod params;
 mod refine;
 mod scratch;
 mod significance;
-pub mod track;
+mod track;
 
 pub use cascade::{CascadeParams, FastPathCheck, PlainSearch};
 pub use localization::{Failure, Localization, Method, StageTimings};
