@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use nalgebra::Isometry3;
 
-use crate::bag::{BagFrames, BagMessages, BagWriter, FrameStream, ReadOptions, TopicMap};
+use crate::bag::{BagFrames, BagMessages, BagWriter, FrameStream, OdometryTopics, ReadOptions, TopicMap};
 use crate::camera::CameraModel;
 use crate::eval::{
     inlier_mask, inlier_ratio, jumps, nees, pose_errors, recovery, summarize, FrameMetrics, PoseErrors, Recovery,
@@ -25,17 +25,25 @@ pub const DIAGNOSTICS_TOPIC: &str = "/diagnostics";
 pub const STATUS_NAME: &str = "angle_i2p: localization";
 
 /// How a command reads and writes bags: the topic names and the input limits.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct BagEdge<'a> {
     pub topics: &'a TopicMap,
     pub limits: &'a InputLimits,
     pub pixels: crate::camera::PixelSpace,
+    /// Where the robot's odometry is in a bag (`node.tf_topic`, `node.tf_static_topic`,
+    /// `node.odom_frame`): frames get theirs for tracking.
+    pub odometry: OdometryTopics,
 }
 
 impl<'a> BagEdge<'a> {
     /// The bag edge of resolved parameters.
     pub fn of(params: &'a AppParams) -> Self {
-        Self { topics: &params.topics, limits: &params.limits, pixels: params.camera.pixels }
+        Self {
+            topics: &params.topics,
+            limits: &params.limits,
+            pixels: params.camera.pixels,
+            odometry: OdometryTopics::of(&params.node),
+        }
     }
 }
 
@@ -91,7 +99,8 @@ pub fn replay(
     mut on_frame: impl FnMut(&FrameProgress),
 ) -> Result<ReplayReport> {
     let topics = edge.topics;
-    let mut stream = FrameStream::open(input, topics, edge.limits)?.with_pixel_space(edge.pixels);
+    let mut stream =
+        FrameStream::open(input, topics, edge.limits)?.with_pixel_space(edge.pixels).with_odometry(edge.odometry);
     if let Some(map) = stream.map.take() {
         localizer.set_map(&map);
     }
@@ -125,6 +134,10 @@ pub fn replay(
     writer.finish()?;
     report.issues = stream.issues.iter().map(|i| format!("{}: {}", i.topic, i.reason)).collect();
     report.issues.extend(stream.limit_counts.summary());
+    if let Some(odometry) = stream.odometry.as_ref().filter(|o| o.left_out > 0) {
+        report.issues.extend(odometry.issues.iter().map(|i| format!("tf: {i}")));
+        report.issues.push(format!("tf: {} transforms or messages left out in all", odometry.left_out));
+    }
     Ok(report)
 }
 
@@ -183,6 +196,9 @@ pub fn localization_diagnostics(loc: &Localization) -> DiagnosticArray {
     }
     if let Some(track) = loc.track {
         values.push(("track", track.name().to_string()));
+    }
+    if let Some(source) = loc.prediction {
+        values.push(("prediction", source.name().to_string()));
     }
     let failure = loc.failure.as_ref().map(|f| f.to_string());
     diagnostics_msg(loc.stamp, loc.method.name(), &values, failure.as_deref())

@@ -54,6 +54,9 @@ pub struct Frame {
     /// distorting camera): outputs map kept pixels back through it, so a matcher gets its own
     /// pixels back.
     pub lens: Option<CameraModel>,
+    /// The camera's pose in the odometry frame at the frame's stamp (`odom → camera` on `/tf`,
+    /// REP 105), when the robot has odometry: the motion since the last pose, for tracking.
+    pub odometry: Option<Isometry3<f64>>,
 }
 
 /// A frame's camera image.

@@ -26,4 +26,5 @@ pub mod reject;
 pub mod report;
 pub mod rng;
 pub mod synth;
+pub mod tf_buffer;
 pub mod verify;

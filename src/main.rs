@@ -250,7 +250,7 @@ fn frame_line(loc: &Localization) -> String {
     };
     format!(
         "frame {}: {} kept, {} inliers, {} hypotheses in {} robust passes, {:.2} ms (fast path {:.2}, geometry {:.2}, \
-         reject {:.2}, pnp {:.2}){}{}{}{}{}{}",
+         reject {:.2}, pnp {:.2}){}{}{}{}{}{}{}",
         loc.stamp,
         loc.kept.len(),
         loc.num_inliers,
@@ -266,6 +266,7 @@ fn frame_line(loc: &Localization) -> String {
         loc.log10_nfa.map(|n| format!(", log10 NFA {n:.1}")).unwrap_or_default(),
         if loc.confirm_search { ", checked by the plain search going on over every match" } else { "" },
         loc.track.map(|t| format!(", {}", t.name())).unwrap_or_default(),
+        loc.prediction.map(|p| format!(" (predicted by {})", p.name())).unwrap_or_default(),
         loc.failure.as_ref().map(|f| format!(" — no pose: {f}")).unwrap_or_default()
     )
 }

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 /// The pure core: frame in, pose out, with no ROS, bag or command in sight.
 const CORE: [&str; 6] = ["geometry", "consistency", "reject", "pnp", "verify", "pipeline"];
 /// The edges: messages, bags, the node and the commands.
-const EDGES: [&str; 6] = ["bag", "msgs", "node", "app", "play", "report"];
+const EDGES: [&str; 7] = ["bag", "msgs", "node", "app", "play", "report", "tf_buffer"];
 
 type Module = Vec<String>;
 

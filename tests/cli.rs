@@ -31,12 +31,17 @@ fn synth_replay_eval_round_trip() {
 /// between, and `eval` finds the jump and says so (text and JSON).
 #[test]
 fn a_kidnapped_camera_relocalizes_and_eval_measures_it() {
+    // With odometry on /tf that does not see the jump (a robot carried away) as well.
+    for preset in ["hard+kidnap", "hard+kidnap+odometry"] {
+        kidnapped(preset);
+    }
+}
+
+fn kidnapped(preset: &str) {
     let dir = tempfile::tempdir().unwrap();
     let (bag, out) = (dir.path().join("in"), dir.path().join("out"));
     run_ok(
-        Command::new(binary())
-            .args(["synth", "--preset", "hard+kidnap", "--frames", "24", "--seed", "3", "--out"])
-            .arg(&bag),
+        Command::new(binary()).args(["synth", "--preset", preset, "--frames", "24", "--seed", "3", "--out"]).arg(&bag),
     );
     let replay = Command::new(binary())
         .arg("replay")
@@ -48,16 +53,61 @@ fn a_kidnapped_camera_relocalizes_and_eval_measures_it() {
         .output()
         .unwrap();
     let log = String::from_utf8_lossy(&replay.stderr);
-    assert!(replay.status.success(), "{log}");
+    assert!(replay.status.success(), "{preset}: {log}");
     assert!(log.contains(", relocalized") && log.contains(", tracking"), "every frame reports its track state:\n{log}");
     let json = run_ok(Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&out).arg("--json"));
     let v: serde_json::Value = serde_json::from_str(&json).unwrap();
     let r = &v["consistency"]["recovery"];
-    assert_eq!(r["jumps"], 1, "{json}");
-    assert!(r["frames_to_recover_max"].as_u64().is_some_and(|n| n <= 3), "{json}");
-    assert_eq!((r["unrecovered"].as_u64(), r["wrong_while_recovering"].as_u64()), (Some(0), Some(0)), "{json}");
+    assert_eq!(r["jumps"], 1, "{preset}: {json}");
+    assert!(r["frames_to_recover_max"].as_u64().is_some_and(|n| n <= 3), "{preset}: {json}");
+    assert_eq!(
+        (r["unrecovered"].as_u64(), r["wrong_while_recovering"].as_u64()),
+        (Some(0), Some(0)),
+        "{preset}: {json}"
+    );
     let text = run_ok(Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&out));
-    assert!(text.contains("1 jump(s) of the camera: a correct pose again within"), "{text}");
+    assert!(text.contains("1 jump(s) of the camera: a correct pose again within"), "{preset}: {text}");
+}
+
+/// A bag with the robot's odometry on `/tf` (`odom → camera`, drifting as wheel odometry does):
+/// replay looks each frame's up at its stamp and tracks with it; with `node.odom_frame` empty it
+/// predicts from the poses' motion instead, and the poses do not change on this clean sequence.
+#[test]
+fn replay_tracks_with_odometry_from_tf() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("in");
+    run_ok(
+        Command::new(binary())
+            .args(["synth", "--preset", "hard+odometry", "--frames", "12", "--seed", "5", "--out"])
+            .arg(&bag),
+    );
+    let replay = |name: &str, params: &[&str]| {
+        let out = dir.path().join(name);
+        let run = Command::new(binary())
+            .arg("replay")
+            .arg(&bag)
+            .arg("--out")
+            .arg(&out)
+            .args(["--method", "consistency", "--verbose"])
+            .args(params)
+            .output()
+            .unwrap();
+        let log = String::from_utf8_lossy(&run.stderr).into_owned();
+        assert!(run.status.success(), "{log}");
+        let eval = run_ok(Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&out).arg("--json"));
+        (log, serde_json::from_str::<serde_json::Value>(&eval).unwrap())
+    };
+    let (with_odometry, eval_odometry) = replay("odometry", &[]);
+    let frames =
+        |log: &str, source: &str| log.lines().filter(|l| l.contains(&format!("(predicted by {source})"))).count();
+    // Every frame after the first is predicted from the one before with odometry.
+    assert_eq!(frames(&with_odometry, "odometry"), 11, "{with_odometry}");
+    assert_eq!(frames(&with_odometry, "motion"), 0, "{with_odometry}");
+    let (without, eval_motion) = replay("motion", &["-p", "node.odom_frame:=''"]);
+    assert_eq!(frames(&without, "odometry"), 0, "{without}");
+    assert!(frames(&without, "motion") >= 10, "{without}");
+    assert_eq!(eval_odometry["consistency"]["RR"], 100.0, "{eval_odometry}");
+    assert_eq!(eval_odometry["consistency"]["RR"], eval_motion["consistency"]["RR"]);
 }
 
 /// Without `--method` replay runs the default, the learned rejector (when ONNX Runtime is there).

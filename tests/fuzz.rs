@@ -366,6 +366,7 @@ fn frame() -> impl Strategy<Value = angle_i2p::frame::Frame> {
             image: None,
             ground_truth: None,
             lens: None,
+            odometry: None,
         },
     )
 }

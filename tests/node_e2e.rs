@@ -421,6 +421,54 @@ fn live_raw_image_and_odom_tf() {
     run_in_netns("inner_raw_image_and_odom_tf");
 }
 
+#[test]
+fn live_odometry_on_tf_predicts_the_frames() {
+    run_in_netns("inner_odometry_on_tf");
+}
+
+/// A synthetic bag whose robot has odometry (`odom → camera` on `/tf`, drifting), played to the
+/// node: the node looks each frame's odometry up at its stamp and predicts the frame with it
+/// (its per-frame diagnostics in the recording say `prediction: odometry`), and every frame is
+/// localized correctly.
+#[test]
+#[ignore = "runs inside a network namespace, via live_odometry_on_tf_predicts_the_frames"]
+fn inner_odometry_on_tf() {
+    enter_netns("live_odometry_on_tf_predicts_the_frames");
+    let tmp = tempfile::tempdir().expect("tmp");
+    let (bag, rec) = (tmp.path().join("bag"), tmp.path().join("rec"));
+    common::run_ok(
+        Command::new(binary())
+            .args(["synth", "--preset", "hard+odometry", "--frames", "12", "--seed", "5", "--out"])
+            .arg(&bag),
+    );
+    let mut node = start_node(tmp.path(), &["-p", "queue_depth:=64", "-p", "method:=consistency"], Some(&rec));
+    let mut play = play_command_of(&bag);
+    play.args(["--wait-for", "/tf"]);
+    let mut play = Guard(play.spawn().expect("spawn play"));
+    let status = wait_bounded(&mut play.0, Duration::from_secs(90)).expect("play timed out");
+    assert!(status.success(), "play failed: {status}");
+    std::thread::sleep(Duration::from_secs(2));
+    let status = interrupt(&mut node.0).expect("node did not stop on SIGINT");
+    let log = node_log(tmp.path());
+    assert!(status.success(), "node exit {status}\n{log}");
+
+    let mut sources: HashMap<String, usize> = HashMap::new();
+    for m in BagReader::open(&rec).expect("recorded bag").messages() {
+        if m.topic() == "/diagnostics" {
+            let d: msgs::DiagnosticArray = from_cdr(&m.data).expect("diagnostics");
+            for kv in d.status.iter().flat_map(|s| s.values.iter()).filter(|kv| kv.key == "prediction") {
+                *sources.entry(kv.value.clone()).or_default() += 1;
+            }
+        }
+    }
+    // Every frame after the first has the one before to carry; TF arrives before a frame's parts.
+    assert_eq!(sources.get("odometry"), Some(&11), "{sources:?}\n{log}");
+    let json = common::run_ok(Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&rec).arg("--json"));
+    let v: serde_json::Value = serde_json::from_str(&json).expect("eval JSON");
+    assert_eq!(find_number(&v, "RR"), Some(100.0), "{json}");
+    mark_done();
+}
+
 /// A numeric value of the node's diagnostics (0 when absent).
 /// The test's own DDS participant publishing one frame's parts to the node, as a camera, a
 /// depth network and a matcher would, and hearing its diagnostics.

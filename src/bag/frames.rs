@@ -10,6 +10,7 @@
 use std::collections::{HashMap, VecDeque};
 use std::path::Path;
 
+use super::odometry::{BagOdometry, OdometryTopics};
 use super::{decode_part_limited, BagError, BagMessages, MessageIssue, ReadOptions, TopicMap};
 use crate::frame::{Assembled, FrameAssembler, IncompleteFrame, MapCloud, MonotonicNs, PartKind, Stamp};
 use crate::limits::{limit_correspondences, InputLimits, LimitCounts};
@@ -88,6 +89,8 @@ pub struct FrameStream {
     pub correspondence_messages: usize,
     /// What the per-frame limits changed so far.
     pub limit_counts: LimitCounts,
+    /// The TF read so far, for the frames' odometry (none unless [`Self::with_odometry`]).
+    pub odometry: Option<BagOdometry>,
 }
 
 impl FrameStream {
@@ -95,6 +98,13 @@ impl FrameStream {
     /// Reads the correspondences' pixels (and the prior) as `space` ([`crate::camera`]).
     pub fn with_pixel_space(mut self, space: crate::camera::PixelSpace) -> Self {
         self.assembler = std::mem::replace(&mut self.assembler, FrameAssembler::new(&[])).with_pixel_space(space);
+        self
+    }
+
+    /// Reads the bag's TF as well and gives every frame its odometry where it has one
+    /// ([`BagOdometry`]).
+    pub fn with_odometry(mut self, topics: OdometryTopics) -> Self {
+        self.odometry = Some(BagOdometry::new(topics));
         self
     }
 
@@ -140,6 +150,7 @@ impl FrameStream {
             issues,
             correspondence_messages,
             limit_counts: LimitCounts::default(),
+            odometry: None,
         })
     }
 
@@ -153,6 +164,9 @@ impl FrameStream {
             };
             // The bag's clock: log times (only repeat detection reads it here, which has no window).
             self.now = self.now.max(m.log_time.min(i64::MAX as u64) as MonotonicNs);
+            if self.odometry.as_mut().is_some_and(|o| o.take(m.topic(), &m.data)) {
+                continue;
+            }
             let Some(kind) = self.topics.part_of(m.topic()) else { continue };
             let done = match decode_part_limited(kind, &m.data, &self.limits) {
                 Ok(part) => self.assembler.push(part, self.now),
@@ -174,6 +188,12 @@ impl FrameStream {
                 self.ready.extend(self.assembler.take_oldest(reason, self.now));
             }
         }
-        Ok(self.ready.pop_front().map(|a| limit_frame(a, &self.limits, &mut self.limit_counts)))
+        let mut next = self.ready.pop_front().map(|a| limit_frame(a, &self.limits, &mut self.limit_counts));
+        if let (Some(odometry), Some(Assembled::Complete(frame) | Assembled::Partial(frame, _))) =
+            (&self.odometry, next.as_mut())
+        {
+            frame.odometry = odometry.at(&frame.camera_frame_id, frame.stamp);
+        }
+        Ok(next)
     }
 }

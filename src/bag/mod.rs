@@ -6,11 +6,13 @@
 
 mod frames;
 pub mod metadata;
+mod odometry;
 pub mod qos;
 mod reader;
 mod writer;
 
 pub use frames::{decode_map, expected_types, limit_frame, DecodedMap, FrameStream};
+pub use odometry::{BagOdometry, OdometryTopics};
 pub use reader::{
     storage_files, BagChannel, BagMessage, BagMessages, BagReader, ReadOptions, DEFAULT_MAX_RECORD_BYTES,
 };
@@ -169,10 +171,18 @@ pub fn write_input_bag(
     Ok(())
 }
 
-/// Writes the messages of one input frame (camera info, image, prior, correspondences, ground
-/// truth), all at the frame's stamp.
+/// The odometry frame a written frame's odometry names on `/tf` (REP 105's `odom`).
+pub const ODOM_FRAME_ID: &str = "odom";
+
+/// Writes the messages of one input frame (camera info, image, prior, correspondences, its
+/// odometry on `/tf`, ground truth), all at the frame's stamp.
 pub fn write_frame(w: &mut BagWriter, topics: &TopicMap, f: &Frame) -> Result<(), BagError> {
     let (t, cam) = (f.stamp, f.camera_frame_id.as_str());
+    // First, as TF flows ahead of a frame's parts: its odometry is known when the frame is whole.
+    if let Some(odometry) = &f.odometry {
+        let tf = convert::transform_message(t, ODOM_FRAME_ID, cam, odometry);
+        w.write(&OdometryTopics::default().tf, t, &tf)?;
+    }
     w.write(&topics.camera_info, t, &convert::camera_info(t, cam, &f.intrinsics))?;
     if let Some(image) = &f.image {
         let msg = convert::compressed_image_msg(t, cam, image)
@@ -224,6 +234,7 @@ mod tests {
                 depth: Some(DepthImage::new(4, 2, vec![1.0, 0.0, 2.5, 0.5, 0.0, 0.0, 0.0, 1.234])),
             }),
             lens: None,
+            odometry: None,
         }
     }
 

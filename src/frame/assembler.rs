@@ -384,6 +384,8 @@ fn frame_of(stamp: Stamp, p: Pending) -> Option<(Frame, CameraModel)> {
         image: p.image,
         ground_truth,
         lens: None,
+        // Not a part of the frame's messages: the edge looks it up on /tf at the stamp.
+        odometry: None,
     };
     Some((frame, camera))
 }

@@ -25,6 +25,7 @@ fn frame_of(correspondences: Vec<Correspondence>) -> Frame {
         image: None,
         ground_truth: None,
         lens: None,
+        odometry: None,
     }
 }
 

@@ -22,7 +22,6 @@ use super::queue::DropOldestQueue;
 use super::readers::{self, Readers};
 use super::recorder::Recorder;
 use super::tf::TfBroadcast;
-use super::tf_buffer::TfHistory;
 use super::topics::Topics;
 use crate::frame::{MonotonicNs, PartKind};
 use crate::limits::InputLimits;
@@ -30,6 +29,7 @@ use crate::map_index::swap::MapSwap;
 use crate::msgs;
 use crate::params::{AppParams, Names, NodeParams};
 use crate::pipeline::{Localizer, LocalizerParams};
+use crate::tf_buffer::TfHistory;
 
 /// One camera as configured: its names, statistics, TF state and initial-pose gate.
 pub struct CameraSetup {

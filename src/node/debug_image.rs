@@ -188,6 +188,7 @@ mod tests {
             image: Some(CameraImage::Raw(image::RgbImage::new(320, 240))),
             ground_truth: None,
             lens: Some(lens),
+            odometry: None,
         };
         let loc = Localization { kept: vec![c], ..Localization::nothing_yet(&frame, Method::AngleI2p) };
         let msg = draw(&DebugJob::of(&frame, &loc).expect("an image"), &InputLimits::default()).expect("an image");
@@ -216,6 +217,7 @@ mod tests {
             image: Some(CameraImage::Raw(image::RgbImage::new(3840, 2160))),
             ground_truth: None,
             lens: None,
+            odometry: None,
         };
         let loc = Localization { kept: vec![c], ..Localization::nothing_yet(&frame, Method::AngleI2p) };
         let msg = draw(&DebugJob::of(&frame, &loc).expect("an image"), &InputLimits::default()).expect("an image");

@@ -51,7 +51,6 @@ pub mod security;
 pub mod services;
 mod setup;
 pub mod tf;
-pub mod tf_buffer;
 mod topics;
 mod worker;
 

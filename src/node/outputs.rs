@@ -92,6 +92,12 @@ impl Outputs {
         self
     }
 
+    /// The camera's pose in the odometry frame at `stamp`, as heard on `/tf` (a frame's
+    /// odometry, for tracking).
+    pub fn odometry_at(&self, camera: &str, stamp: crate::frame::Stamp) -> Option<nalgebra::Isometry3<f64>> {
+        lock(&self.broadcast).odometry_at(camera, stamp)
+    }
+
     async fn send<M: RosMessage + Clone + std::fmt::Debug>(&self, p: &Publisher<M>, topic: &str, msg: M) {
         self.recorder.write(topic, &msg, &self.stats);
         if let Err(e) = p.async_publish(msg).await {

@@ -19,12 +19,12 @@ use super::ingest::{Input, Routed};
 use super::initial_pose::{gate_from_msg, GateWidth, InitialPose};
 use super::log::{info, lock};
 use super::services;
-use super::tf_buffer::TfHistory;
 use super::topics::Topics;
 use crate::frame::{CameraImage, FramePart, PartKind, Stamp};
 use crate::limits::InputLimits;
 use crate::msgs::{self, convert, RosMessage};
 use crate::params::{MapQos, Names, NodeParams};
+use crate::tf_buffer::TfHistory;
 
 /// Spawns a reader thread that drains `sub`, converting each message with `convert` (`None`:
 /// nothing for the ingest task). (ros2-client's sample streams are not `Send`, so each reader

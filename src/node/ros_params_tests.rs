@@ -1,8 +1,8 @@
 //! The node's parameters as ROS has them: every one declared, live ones applied, others refused.
 
 use super::*;
-use crate::node::tf_buffer::TfHistory;
 use crate::params::NodeParams;
+use crate::tf_buffer::TfHistory;
 
 fn live(params: &AppParams) -> (LiveParams, LiveTargets) {
     let buffer = Arc::new(Mutex::new(TfHistory::default()));

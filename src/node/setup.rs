@@ -13,12 +13,12 @@ use super::clock::NodeClock;
 use super::initial_pose::GateWidth;
 use super::log::{info, lock};
 use super::recorder::Recorder;
-use super::tf_buffer::TfHistory;
 use super::topics::Topics;
 use crate::frame::PartKind;
 use crate::limits::InputLimits;
 use crate::params::{AppParams, Names, NodeParams, TfMode};
 use crate::pipeline::{LocalizerParams, Method};
+use crate::tf_buffer::TfHistory;
 
 /// Step 1, parameters: what the node was configured with, resolved once.
 pub struct Setup {

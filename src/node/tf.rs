@@ -1,5 +1,5 @@
 //! The TF the node broadcasts and its base pose, as REP 105 has them (tested with the buffer,
-//! in `tf_buffer_tests.rs`).
+//! in `src/tf_buffer_tests.rs`).
 //!
 //! - `map → odom` = (map→camera) · (odom→camera)⁻¹, so the map frame joins the robot's
 //!   `odom → base_link → … → camera` tree as AMCL-style localizers do; `odom → camera` comes
@@ -21,10 +21,10 @@ use nalgebra::Isometry3;
 use thiserror::Error;
 
 use super::log::lock;
-use super::tf_buffer::{TfHistory, TfLookupError};
 use crate::frame::Stamp;
 use crate::msgs::{self, convert, TFMessage};
 use crate::params::{NodeParams, TfMode};
+use crate::tf_buffer::{TfHistory, TfLookupError};
 
 /// `map → odom` from the camera's pose in the map and in odom: (map→camera) · (odom→camera)⁻¹.
 pub fn map_to_odom(map_camera: &Isometry3<f64>, odom_camera: &Isometry3<f64>) -> Isometry3<f64> {
@@ -33,17 +33,7 @@ pub fn map_to_odom(map_camera: &Isometry3<f64>, odom_camera: &Isometry3<f64>) ->
 
 /// One `parent → child` transform as a TF message.
 pub fn tf_message(stamp: Stamp, parent: &str, child: &str, parent_child: &Isometry3<f64>) -> TFMessage {
-    let p = convert::pose_from_isometry(parent_child);
-    TFMessage {
-        transforms: vec![msgs::TransformStamped {
-            header: msgs::Header::new(stamp, parent),
-            child_frame_id: child.to_string(),
-            transform: msgs::Transform {
-                translation: msgs::Vector3 { x: p.position.x, y: p.position.y, z: p.position.z },
-                rotation: p.orientation,
-            },
-        }],
-    }
+    convert::transform_message(stamp, parent, child, parent_child)
 }
 
 /// Why a localized frame sends no TF or no base pose.
@@ -193,6 +183,16 @@ impl TfBroadcast {
 
     pub fn frames(&self) -> &TfFrames {
         &self.frames
+    }
+
+    /// The camera's pose in `odom_frame` at `stamp` (odom-from-camera), as heard on `/tf`: the
+    /// frame's odometry, for tracking; `None` without `odom_frame` or where the lookup fails
+    /// (the frame is then predicted without it; the TF it sends says why, once localized).
+    pub fn odometry_at(&self, camera: &str, stamp: Stamp) -> Option<Isometry3<f64>> {
+        if self.frames.odom.is_empty() {
+            return None;
+        }
+        lock(&self.buffer).lookup(&self.frames.odom, &frame_id(camera), stamp).ok()
     }
 
     /// The TF (when `with_tf`) and base pose of a frame localized at `map_camera`.

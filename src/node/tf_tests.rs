@@ -3,7 +3,7 @@
 use nalgebra::Isometry3;
 
 use super::*;
-use crate::node::tf_buffer::tests::{close, iso};
+use crate::tf_buffer::tests::{close, iso};
 
 const S: i64 = 1_000_000_000;
 const CAM: &str = "camera_optical";

@@ -103,7 +103,9 @@ pub async fn run(
         };
         // The `/initialpose` gate steers PnP itself, not only the published pose.
         current.set_pose_gate(gate_for(&gate, &job.frame, &outputs.stats));
-        let done = match localize(current, maps, job.frame).await {
+        let mut frame = job.frame;
+        frame.odometry = outputs.odometry_at(&frame.camera_frame_id, frame.stamp);
+        let done = match localize(current, maps, frame).await {
             Ok(done) => done,
             Err(e) => {
                 warn(format!("{e}; continuing with a fresh localizer"));

@@ -54,6 +54,7 @@ mod tests {
             image: None,
             ground_truth: None,
             lens: None,
+            odometry: None,
         };
         Localization::nothing_yet(&frame, Method::AngleI2p)
     }

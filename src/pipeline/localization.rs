@@ -5,7 +5,7 @@ use nalgebra::{Isometry3, Matrix6};
 use serde::{Deserialize, Serialize};
 
 use super::cascade::FastPathCheck;
-use super::track::TrackState;
+use super::track::{PredictionSource, TrackState};
 use crate::consistency::ScaleShift;
 use crate::frame::{Correspondence, Frame, Stamp};
 use crate::pnp::PnpError;
@@ -145,6 +145,8 @@ pub struct Localization {
     pub robust_passes: usize,
     /// How the frame stands to the track (`None` with tracking off: frames alone).
     pub track: Option<TrackState>,
+    /// What predicted the frame's pose (`None`: no prediction, or tracking off).
+    pub prediction: Option<PredictionSource>,
     pub timings: StageTimings,
     pub failure: Option<Failure>,
 }
@@ -172,6 +174,7 @@ impl Localization {
             outside_gate_log10_nfa: None,
             robust_passes: 0,
             track: None,
+            prediction: None,
             timings: StageTimings::default(),
             failure: None,
         }

@@ -32,7 +32,7 @@ pub use cascade::{CascadeParams, FastPathCheck, PlainSearch};
 pub use localization::{Failure, Localization, Method, StageTimings};
 pub use params::LocalizerParams;
 pub use refine::{FinalRefine, RefineFrame};
-pub use track::{TrackState, TrackingParams};
+pub use track::{PredictionSource, TrackState, TrackingParams};
 
 /// Why a localizer cannot be set up for its method.
 #[derive(Debug, Clone, thiserror::Error)]
@@ -168,7 +168,8 @@ impl Localizer {
         let start = Instant::now();
         let mut out = Localization::nothing_yet(frame, self.params.method);
         let tracking = self.params.tracking.enabled;
-        let prediction = if tracking { self.tracker.predict(frame.stamp) } else { None };
+        let prediction = if tracking { self.tracker.predict(frame.stamp, frame.odometry.as_ref()) } else { None };
+        out.prediction = prediction.map(|p| p.source);
         match self.validate(frame) {
             Ok(()) => self.localize(frame, &mut out),
             Err(failure) => out.failure = Some(failure),
@@ -179,7 +180,8 @@ impl Localizer {
         self.weigh_gate(&mut out);
         let published = self.withhold_unsure(frame, prediction.as_ref(), &mut out);
         if tracking {
-            out.track = Some(self.tracker.update(frame.stamp, published, prediction.as_ref()));
+            let odometry = frame.odometry.as_ref();
+            out.track = Some(self.tracker.update(frame.stamp, published, prediction.as_ref(), odometry));
         }
         out.timings.total_ms = ms_since(start);
         out

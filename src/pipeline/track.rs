@@ -4,11 +4,14 @@
 //! when it disagrees with a prediction that has proved itself; a pose with meaningful support
 //! is published wherever it is (a kidnapped camera re-localizes at once).
 //!
-//! The prediction extrapolates the motion over the last few published poses to the frame's
-//! stamp (constant velocity measured over up to three intervals, which divides the poses' own
-//! errors; the last pose alone after a re-localization). How far it may be
-//! off is learnt from the stream itself: the recent errors of predictions against poses that
-//! were sure on their own evidence, each scaled to the interval it extrapolated over. Errors are
+//! The prediction carries the last published pose to the frame's stamp: with the robot's
+//! odometry when the frame and that pose both have it (the odometry's motion between their
+//! stamps, `odom → camera` from `/tf`, REP 105), otherwise by extrapolating the motion over the
+//! last few published poses (constant velocity measured over up to three intervals, which
+//! divides the poses' own errors; the last pose alone after a re-localization). How far it may
+//! be off is learnt from the stream itself, for each of the two sources apart: the recent errors
+//! of its predictions against poses that were sure on their own evidence, each scaled to the
+//! interval it predicted over. Errors are
 //! measured as a *view angle* — the rotation between two poses plus their distance over the
 //! depth of the scene in view — so that one measure holds at any range and on any sensor; the
 //! floor under it is the inlier threshold's angle at the frame's focal length.
@@ -62,10 +65,30 @@ impl TrackState {
     }
 }
 
+/// What a prediction carries the last published pose with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PredictionSource {
+    /// The robot's odometry between the two stamps.
+    Odometry,
+    /// The motion of the last published poses, extrapolated (or the last pose alone).
+    Motion,
+}
+
+impl PredictionSource {
+    pub fn name(self) -> &'static str {
+        match self {
+            PredictionSource::Odometry => "odometry",
+            PredictionSource::Motion => "motion",
+        }
+    }
+}
+
 /// The predicted camera-to-map pose of a frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Prediction {
     pub pose: Isometry3<f64>,
+    pub source: PredictionSource,
     /// The typical error of predictions over this interval (view angle, radians); `None` until
     /// the stream has measured enough of them (the prediction is then not evidence).
     pub typical_error: Option<f64>,
@@ -91,6 +114,8 @@ impl Disagreement {
 struct Fix {
     stamp: Stamp,
     pose: Isometry3<f64>,
+    /// The frame's odometry (camera in the odometry frame), when it had one.
+    odometry: Option<Isometry3<f64>>,
 }
 
 /// Published poses the motion is measured over (three intervals).
@@ -111,8 +136,10 @@ pub struct Tracker {
     fixes: VecDeque<Fix>,
     /// Stamp of the last frame seen (published or not).
     last_frame: Option<Stamp>,
-    /// Recent errors of predictions against sure poses, per second of extrapolation.
+    /// Recent errors of motion predictions against sure poses, per second of extrapolation.
     errors_per_s: VecDeque<f64>,
+    /// The same for odometry's predictions.
+    odometry_errors_per_s: VecDeque<f64>,
     /// Recent intervals between frames (s).
     intervals: VecDeque<f64>,
 }
@@ -123,14 +150,25 @@ impl Tracker {
         *self = Self::default();
     }
 
-    /// The prediction for a frame at `stamp`; `None` without a recent published pose. A stamp
-    /// that is not after the last frame's starts the stream again.
-    pub fn predict(&mut self, stamp: Stamp) -> Option<Prediction> {
+    /// The prediction for a frame at `stamp` whose camera is at `odometry` in the odometry
+    /// frame (if known); `None` without a recent published pose. A stamp that is not after the
+    /// last frame's starts the stream again.
+    pub fn predict(&mut self, stamp: Stamp, odometry: Option<&Isometry3<f64>>) -> Option<Prediction> {
         if self.last_frame.is_some_and(|last| stamp <= last) {
             self.reset();
         }
         let last = *self.fixes.back()?;
         let dt = seconds(stamp - last.stamp);
+        if let (Some(now), Some(then)) = (odometry, last.odometry.as_ref()) {
+            // The map pose of the odometry frame, as the last pose puts it, carries the camera.
+            let pose = last.pose * then.inverse() * now;
+            let typical = typical_error(&self.odometry_errors_per_s);
+            return Some(Prediction {
+                pose,
+                source: PredictionSource::Odometry,
+                typical_error: typical.map(|e| e * dt),
+            });
+        }
         let typical_interval = median(self.intervals.iter().copied())?;
         if dt > MAX_GAP_INTERVALS * typical_interval {
             return None;
@@ -142,19 +180,19 @@ impl Tracker {
             Some(first) if first.stamp < last.stamp => extrapolate(first, &last, stamp),
             _ => last.pose,
         };
-        let typical_error =
-            (self.errors_per_s.len() >= MIN_ERRORS).then(|| median(self.errors_per_s.iter().copied())).flatten();
-        Some(Prediction { pose, typical_error: typical_error.map(|e| e * dt) })
+        let typical = typical_error(&self.errors_per_s);
+        Some(Prediction { pose, source: PredictionSource::Motion, typical_error: typical.map(|e| e * dt) })
     }
 
-    /// The frame at `stamp` is done: `published`, the pose it published (if any), `sure` whether
-    /// that pose was sure on the frame's own evidence, `prediction` what was predicted for it
-    /// and `depth` the scene's depth in view at the pose. Returns the frame's state.
+    /// The frame at `stamp` is done: `published`, the pose it published (if any) and how it
+    /// stands, `prediction` what was predicted for it and `odometry` the frame's odometry.
+    /// Returns the frame's state.
     pub fn update(
         &mut self,
         stamp: Stamp,
         published: Option<Published>,
         prediction: Option<&Prediction>,
+        odometry: Option<&Isometry3<f64>>,
     ) -> TrackState {
         if let Some(last) = self.last_frame {
             push_bounded(&mut self.intervals, seconds(stamp - last), INTERVALS_KEPT);
@@ -166,8 +204,12 @@ impl Tracker {
             let angle = view_angle(&prediction.pose, &published.pose, depth);
             if published.sure {
                 let dt = seconds(stamp - last.stamp);
+                let errors = match prediction.source {
+                    PredictionSource::Odometry => &mut self.odometry_errors_per_s,
+                    PredictionSource::Motion => &mut self.errors_per_s,
+                };
                 if dt > 0.0 {
-                    push_bounded(&mut self.errors_per_s, angle / dt, ERRORS_KEPT);
+                    push_bounded(errors, angle / dt, ERRORS_KEPT);
                 }
             }
             if published.agreement.is_some_and(|d| d.agrees()) {
@@ -178,7 +220,7 @@ impl Tracker {
         if published.agreement.is_some_and(|d| !d.agrees()) {
             self.fixes.clear();
         }
-        self.fixes.push_back(Fix { stamp, pose: published.pose });
+        self.fixes.push_back(Fix { stamp, pose: published.pose, odometry: odometry.copied() });
         while self.fixes.len() > FIXES_KEPT {
             self.fixes.pop_front();
         }
@@ -264,6 +306,12 @@ fn push_bounded(values: &mut VecDeque<f64>, value: f64, kept: usize) {
             values.pop_front();
         }
     }
+}
+
+/// The typical error per second of recent predictions (their median); `None` until
+/// [`MIN_ERRORS`] were measured (the prediction is then not evidence).
+fn typical_error(errors_per_s: &VecDeque<f64>) -> Option<f64> {
+    (errors_per_s.len() >= MIN_ERRORS).then(|| median(errors_per_s.iter().copied())).flatten()
 }
 
 fn median(values: impl Iterator<Item = f64>) -> Option<f64> {

@@ -408,6 +408,7 @@ mod tests {
             image: None,
             ground_truth: None,
             lens: None,
+            odometry: None,
         };
         (frame, truth)
     }

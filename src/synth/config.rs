@@ -10,8 +10,8 @@ pub const PRESETS: [&str; 4] = ["sift", "hard", "extreme", "easy"];
 /// Modifiers a tier may be joined with by `+` in [`SynthConfig::preset`]: the sensor and scene
 /// (`close`, `hd`, `wide`, `office`), the map (`small-map`, `large-map`) and the prior (`harsh`,
 /// `disparity`).
-pub const PRESET_MODIFIERS: [&str; 10] =
-    ["close", "hd", "wide", "small-map", "large-map", "harsh", "disparity", "building", "office", "kidnap"];
+pub const PRESET_MODIFIERS: [&str; 11] =
+    ["close", "hd", "wide", "small-map", "large-map", "harsh", "disparity", "building", "office", "kidnap", "odometry"];
 /// Rooms per row of a building, at most.
 pub const MAX_BUILDING_ROOMS: usize = 32;
 /// Map points `synth` makes, at most.
@@ -129,6 +129,9 @@ pub struct SynthConfig {
     /// A kidnapped camera: from this share of the frames on, the camera is half its path further
     /// on (across the room, or the building), with nothing in the stream saying so; 0: never.
     pub kidnap_at: f64,
+    /// Odometry on `/tf` (`odom → camera`): each step measured with errors of this share of its
+    /// distance and turn, adding up ([`super::odometry::Odometry`]); negative: no odometry.
+    pub odometry_drift: f64,
 }
 
 impl Default for SynthConfig {
@@ -178,6 +181,7 @@ impl Default for SynthConfig {
             map_rotation_deg: [0.5, 1.5],
             map_offset_m: [0.01, 0.04],
             kidnap_at: 0.0,
+            odometry_drift: -1.0,
         }
     }
 }
@@ -199,7 +203,9 @@ impl SynthConfig {
     ///   from structure-from-motion poses are;
     /// * `harsh`: a metric-like prior with object-sized errors, far-depth compression, smeared
     ///   edges and a ±20 % warp at an odd resolution; `disparity`: affine-invariant disparity;
-    /// * `kidnap`: half-way through, the camera jumps half its path on (a kidnapped robot).
+    /// * `kidnap`: half-way through, the camera jumps half its path on (a kidnapped robot);
+    /// * `odometry`: the robot's odometry on `/tf` (`odom → camera`), off by 2 % of every step's
+    ///   distance and turn, adding up (wheel odometry's drift); it does not see a kidnap.
     pub fn preset(name: &str) -> Option<SynthConfig> {
         let name = name.trim().to_ascii_lowercase();
         let mut parts = name.split('+').map(str::trim);
@@ -250,6 +256,7 @@ impl SynthConfig {
             },
             "disparity" => SynthConfig { prior_kind: SynthPriorKind::Disparity, ..self },
             "kidnap" => SynthConfig { kidnap_at: 0.5, ..self },
+            "odometry" => SynthConfig { odometry_drift: 0.02, ..self },
             "building" => super::building::preset(self),
             "office" => SynthConfig {
                 room_size: [9.0, 6.5, 2.8],
@@ -365,6 +372,10 @@ impl SynthConfig {
             map_rotation_deg: ordered(self.map_rotation_deg, d.map_rotation_deg, 10.0),
             map_offset_m: ordered(self.map_offset_m, d.map_offset_m, 1.0),
             kidnap_at: unit(self.kidnap_at, 0.0),
+            odometry_drift: match self.odometry_drift {
+                d if d >= 0.0 => d.min(0.5),
+                _ => -1.0,
+            },
         }
     }
 }

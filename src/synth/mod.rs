@@ -12,6 +12,7 @@ mod building;
 mod config;
 mod corr;
 mod drift;
+mod odometry;
 mod prior;
 mod scene;
 
@@ -38,6 +39,8 @@ pub const FIRST_STAMP: Stamp = 1_700_000_000_000_000_000;
 pub const CAMERA_FRAME_ID: &str = "camera_color_optical_frame";
 /// Frame id of the map.
 pub const MAP_FRAME_ID: &str = "map";
+/// Frame id of the odometry frame (`odom → camera` on `/tf` with the `odometry` modifier).
+pub const ODOM_FRAME_ID: &str = "odom";
 /// What the generator knows about one frame.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FrameStats {
@@ -240,7 +243,18 @@ impl CameraPath {
 
     /// Camera-to-map pose of the optical frame (x right, y down, z forward) of frame `k`.
     fn pose(&self, k: usize) -> Isometry3<f64> {
-        let kidnapped = self.kidnap_frame.is_some_and(|first| k >= first);
+        self.pose_along(k, self.kidnap_frame.is_some_and(|first| k >= first))
+    }
+
+    /// The motion into frame `k` that odometry feels where it is not the true one: at the
+    /// kidnap, the step the camera would have made had it not been carried away.
+    fn felt_step(&self, k: usize) -> Option<Isometry3<f64>> {
+        (self.kidnap_frame == Some(k) && k > 0)
+            .then(|| self.pose_along(k - 1, false).inverse() * self.pose_along(k, false))
+    }
+
+    /// The pose of frame `k` on the path, `kidnapped` (half the path further on) or not.
+    fn pose_along(&self, k: usize, kidnapped: bool) -> Isometry3<f64> {
         let along = (k as f64 / self.frames as f64 + if kidnapped { 0.5 } else { 0.0 }).fract();
         let phi = self.phase + std::f64::consts::TAU * along;
         let [a, b, c, d] = self.wobble;
@@ -339,6 +353,10 @@ impl FrameContext<'_> {
             image,
             ground_truth: Some(GroundTruth { pose: Some(pose), depth: Some(render.depth) }),
             lens: None,
+            odometry: (c.odometry_drift >= 0.0).then(|| {
+                let odometry = odometry::Odometry::new(c.odometry_drift, c.seed);
+                odometry.at(k, |j| self.path.pose(j), |j| self.path.felt_step(j))
+            }),
         };
         let mask = inlier_mask(&frame, c.inlier_threshold_m);
         let inliers = mask.iter().filter(|&&m| m).count();

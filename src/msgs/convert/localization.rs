@@ -64,6 +64,7 @@ mod tests {
             image: None,
             ground_truth: None,
             lens: None,
+            odometry: None,
         };
         Localizer::new(params).expect("a ransac localizer").process(&frame)
     }

@@ -163,6 +163,21 @@ pub fn isometry_from_pose(pose: &Pose) -> Result<Isometry3<f64>, MsgError> {
     Ok(Isometry3::from_parts(Translation3::new(p.x, p.y, p.z), UnitQuaternion::from_quaternion(quat)))
 }
 
+/// One `parent → child` transform (parent-from-child) as a `/tf` message.
+pub fn transform_message(stamp: Stamp, parent: &str, child: &str, parent_child: &Isometry3<f64>) -> super::TFMessage {
+    let p = pose_from_isometry(parent_child);
+    super::TFMessage {
+        transforms: vec![super::TransformStamped {
+            header: super::Header::new(stamp, parent),
+            child_frame_id: child.to_string(),
+            transform: super::Transform {
+                translation: super::Vector3 { x: p.position.x, y: p.position.y, z: p.position.z },
+                rotation: p.orientation,
+            },
+        }],
+    }
+}
+
 /// Isometry → Pose.
 pub fn pose_from_isometry(iso: &Isometry3<f64>) -> Pose {
     let t = &iso.translation.vector;

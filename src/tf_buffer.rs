@@ -2,6 +2,8 @@
 //! `/tf` and the static ones of `/tf_static`, looked up at a stamp (interpolated between the
 //! samples around it) through any tree path between two frames, e.g.
 //! `odom → base_link → camera_link → camera_color_frame → camera_color_optical_frame`.
+//! An edge module: the node keeps one live, bag replay one of a bag's `/tf` (a frame's
+//! odometry, [`crate::bag::BagOdometry`]).
 //!
 //! Bounded (#38): [`TfHistory::CACHE_NS`] of history per frame (tf2's default 10 s), at most
 //! [`MAX_SAMPLES`] samples per frame, [`MAX_FRAMES`] frames and [`MAX_TOTAL_SAMPLES`] samples
