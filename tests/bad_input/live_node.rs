@@ -108,6 +108,22 @@ impl Wire {
         d.and_then(|d| status_value(d, key)).and_then(|v| v.parse().ok()).unwrap_or(0)
     }
 
+    /// The node's pose of the frame at `stamp` (camera-to-map), `None` when none comes within
+    /// `within` (poses of other stamps heard meanwhile are dropped).
+    pub(super) fn pose_of(&self, stamp: i64, within: Duration) -> Option<nalgebra::Isometry3<f64>> {
+        let end = Instant::now() + within;
+        while Instant::now() < end {
+            if let Ok(Some((p, _))) = self.pose.take() {
+                if convert::stamp(&p.header) == stamp {
+                    return convert::isometry_from_pose(&p.pose).ok();
+                }
+            } else {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        }
+        None
+    }
+
     /// Waits for the node's pose of the frame at `stamp`.
     pub(super) fn wait_pose(&self, stamp: i64, log: &Path) {
         let end = Instant::now() + Duration::from_secs(20);
