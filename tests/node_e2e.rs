@@ -452,17 +452,24 @@ fn inner_odometry_on_tf() {
     let log = node_log(tmp.path());
     assert!(status.success(), "node exit {status}\n{log}");
 
-    let mut sources: HashMap<String, usize> = HashMap::new();
+    // Per frame (replay's status, recorded) and in the node's periodic status (`frames_localized`).
+    let (mut sources, mut node_says): (HashMap<String, usize>, Vec<String>) = (HashMap::new(), Vec::new());
     for m in BagReader::open(&rec).expect("recorded bag").messages() {
         if m.topic() == "/diagnostics" {
             let d: msgs::DiagnosticArray = from_cdr(&m.data).expect("diagnostics");
-            for kv in d.status.iter().flat_map(|s| s.values.iter()).filter(|kv| kv.key == "prediction") {
-                *sources.entry(kv.value.clone()).or_default() += 1;
+            for status in &d.status {
+                let value = |key: &str| status.values.iter().find(|kv| kv.key == key).map(|kv| kv.value.clone());
+                match (value("prediction"), value("frames_localized")) {
+                    (Some(p), None) => *sources.entry(p).or_default() += 1,
+                    (Some(p), Some(_)) => node_says.push(p),
+                    _ => {}
+                }
             }
         }
     }
     // Every frame after the first has the one before to carry; TF arrives before a frame's parts.
     assert_eq!(sources.get("odometry"), Some(&11), "{sources:?}\n{log}");
+    assert_eq!(node_says.last().map(String::as_str), Some("odometry"), "{node_says:?}");
     let json = common::run_ok(Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&rec).arg("--json"));
     let v: serde_json::Value = serde_json::from_str(&json).expect("eval JSON");
     assert_eq!(find_number(&v, "RR"), Some(100.0), "{json}");

@@ -55,6 +55,8 @@ pub struct Stats {
     fast_path: VecDeque<bool>,
     /// The last localized frame's standing to the track (`None` with tracking off).
     track: Option<crate::pipeline::TrackState>,
+    /// What predicted the last localized frame (`None`: nothing did).
+    prediction: Option<crate::pipeline::PredictionSource>,
     /// (time, frames_in, frames_localized) at the last report, for rates.
     last_report: (Instant, u64, u64),
     /// Inputs and outcomes over the recent window: the levels.
@@ -85,6 +87,7 @@ impl Default for Stats {
             prior_quality: VecDeque::new(),
             fast_path: VecDeque::new(),
             track: None,
+            prediction: None,
             last_report: (now, 0, 0),
             health: Health::default(),
         }
@@ -157,9 +160,15 @@ impl Stats {
         self.fast_path.push_back(fast_path);
     }
 
-    /// The last localized frame's standing to the track: `tracking`, `relocalized` or `lost`.
-    pub fn frame_track(&mut self, track: Option<crate::pipeline::TrackState>) {
+    /// The last localized frame's standing to the track (`tracking`, `relocalized` or `lost`)
+    /// and what predicted it (`odometry` or `motion`).
+    pub fn frame_track(
+        &mut self,
+        track: Option<crate::pipeline::TrackState>,
+        prediction: Option<crate::pipeline::PredictionSource>,
+    ) {
         self.track = track;
+        self.prediction = prediction;
     }
 
     /// The node's statuses: `<node_name>: localization` (cumulative counts, rates since the
@@ -191,6 +200,7 @@ impl Stats {
             ("prior_quality_last", self.prior_quality.back().map(|v| format!("{v:.3}")).unwrap_or_default()),
             ("fast_path_share", fast_share.map(|v| format!("{v:.2}")).unwrap_or_default()),
             ("track", self.track.map(|t| t.name().to_string()).unwrap_or_default()),
+            ("prediction", self.prediction.map(|p| p.name().to_string()).unwrap_or_default()),
             ("maps_received", self.maps_received.to_string()),
             ("map_points", self.map_points.to_string()),
             ("maps_indexed", self.maps_indexed.to_string()),
@@ -244,13 +254,17 @@ mod tests {
         s.frame_evidence(Some(0.8), false);
         s.frame_evidence(None, true);
         s.count_tf("map_to_odom");
-        s.frame_track(Some(crate::pipeline::TrackState::Relocalized));
+        s.frame_track(
+            Some(crate::pipeline::TrackState::Relocalized),
+            Some(crate::pipeline::PredictionSource::Odometry),
+        );
         let r = s.report(5, "angle_i2p", "/angle_i2p");
         assert_eq!(r.status[0].name, "angle_i2p: localization");
         assert_eq!(r.status[0].level, DiagnosticStatus::OK, "{}", r.status[0].message);
         assert_eq!(status_value(&r, "prior_quality_last"), Some("0.800"));
         assert_eq!(status_value(&r, "fast_path_share"), Some("0.50"));
         assert_eq!(status_value(&r, "track"), Some("relocalized"));
+        assert_eq!(status_value(&r, "prediction"), Some("odometry"));
         assert_eq!(status_value(&r, "dropped.queue_full"), Some("2"));
         assert_eq!(status_value(&r, "error.pnp"), Some("1"));
         assert_eq!(status_value(&r, "tf.map_to_odom"), Some("1"));

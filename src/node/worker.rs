@@ -131,7 +131,7 @@ fn record_outcome(stats: &Mutex<Stats>, loc: &Localization, latency_ms: f64) {
     let stamp = loc.stamp;
     let mut s = lock(stats);
     s.frame_done(stamp, loc.pose.is_some(), latency_ms, loc.timings.total_ms);
-    s.frame_track(loc.track);
+    s.frame_track(loc.track, loc.prediction);
     if loc.pose.is_some() {
         s.frame_evidence(loc.prior_quality, loc.fast_path);
     }
