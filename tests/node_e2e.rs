@@ -994,17 +994,7 @@ fn inner_raw_image_and_odom_tf() {
     let s2 = s1 + 1_000_000_000;
     // The chain is looked up at the image's stamp: samples at s1 and s2 cover it.
     let tf_of = |stamp: i64, parent: &str, child: &str, t: &nalgebra::Isometry3<f64>| {
-        let p = convert::pose_from_isometry(t);
-        msgs::TFMessage {
-            transforms: vec![msgs::TransformStamped {
-                header: msgs::Header::new(stamp, parent),
-                child_frame_id: child.into(),
-                transform: msgs::Transform {
-                    translation: msgs::Vector3 { x: p.position.x, y: p.position.y, z: p.position.z },
-                    rotation: p.orientation,
-                },
-            }],
-        }
+        convert::transform_message(stamp, parent, child, t)
     };
     for stamp in [s1, s2] {
         tf_pub.publish(tf_of(stamp, "odom", "base_link", &odom_base)).expect("tf");
