@@ -1,10 +1,10 @@
 //! The live node under heavy and hostile traffic (#38): storms and floods over DDS, inside a
 //! private network namespace, each into a fresh node (the good map loaded first, then the attack)
 //! so that no case leans on what an earlier one left. After each: a good frame gets its pose
-//! promptly, the node still localizes a real bag's frames (the shipped synthetic bag's without
-//! the shared data) (at least 18 of 20, none more than
-//! 10 cm off: maps that are not maps never replaced the good one), the flood is counted, and the
-//! node's peak memory stays under a stated bound (a clean node holds ~110 MB).
+//! promptly; the node still localizes a real bag's 20 frames (the shipped synthetic bag's without
+//! the shared data), at least 18 and none more than 10 cm off, so no map that is not a map
+//! replaced the good one; the flood is counted; and the node's peak memory stays under a stated
+//! bound (a clean node holds ~60–110 MB).
 
 use std::process::Command;
 use std::time::{Duration, Instant};
