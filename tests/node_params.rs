@@ -234,6 +234,26 @@ fn inner_ros_parameters_rosout_and_clock() {
         }
         last == Some(sim)
     });
+    // A /clock in 1901 is ignored and counted, and one that goes back is counted (#38).
+    let cam5_count = |d: &msgs::DiagnosticArray, key: &str| {
+        d.status
+            .iter()
+            .filter(|s| s.hardware_id == "/cam5/angle_i2p")
+            .flat_map(|s| s.values.iter())
+            .find(|kv| kv.key == key)
+            .and_then(|kv| kv.value.parse::<u64>().ok())
+    };
+    let (mut invalid, mut back) = (None, None);
+    netns::wait_for("/clock problems counted", &logs, || {
+        // Best effort, as /clock is read: sent again until counted.
+        clock_pub.publish(Clock { clock: msgs::Time { sec: i32::MIN, nanosec: 0 } }).expect("clock");
+        clock_pub.publish(Clock { clock: msgs::Time::from_nanos(sim - 1_000_000_000) }).expect("clock");
+        while let Ok(Some((d, _))) = diag.take() {
+            invalid = cam5_count(&d, "error.invalid_clock").or(invalid);
+            back = cam5_count(&d, "error.clock_jumped_back").or(back);
+        }
+        invalid.is_some_and(|n| n >= 1) && back.is_some_and(|n| n >= 1)
+    });
     let ok = params.set("use_sim_time", ParameterValue::Boolean(false), &log5);
     assert!(ok.successful, "{ok:?}");
     let wall = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("clock").as_nanos() as i64;

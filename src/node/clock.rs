@@ -37,11 +37,25 @@ pub struct NodeClock {
     use_sim_time: Arc<AtomicBool>,
     /// The newest `/clock` time heard.
     sim: Arc<Mutex<Option<Stamp>>>,
+    /// What `/clock` did that diagnostics count (taken by [`NodeClock::take_problems`]; at most
+    /// [`MAX_PROBLEMS`] wait, the rest are dropped with a count).
+    problems: Arc<Mutex<Vec<ClockProblem>>>,
+}
+
+/// Problems kept between two diagnostics reports, at most (a flood of bad `/clock` messages
+/// holds no more).
+const MAX_PROBLEMS: usize = 64;
+
+/// A `/clock` message diagnostics count (`error.<key>`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ClockProblem {
+    pub key: &'static str,
+    pub detail: String,
 }
 
 impl NodeClock {
     pub fn new(use_sim_time: bool) -> Self {
-        Self { use_sim_time: Arc::new(AtomicBool::new(use_sim_time)), sim: Arc::default() }
+        Self { use_sim_time: Arc::new(AtomicBool::new(use_sim_time)), sim: Arc::default(), problems: Arc::default() }
     }
 
     pub fn uses_sim_time(&self) -> bool {
@@ -53,16 +67,36 @@ impl NodeClock {
         self.use_sim_time.store(use_sim_time, Ordering::Relaxed);
     }
 
-    /// A `/clock` message heard (time may jump back: a replayed bag restarted); a time before
-    /// 1970 is no time a simulator or a bag gives, and is ignored (#38: −2³¹ s stamped the
-    /// diagnostics in 1901). Whether it was taken.
+    /// A `/clock` message heard. A time before 1970 is no time a simulator or a bag gives: it is
+    /// ignored and counted (`error.invalid_clock`; #38: −2³¹ s stamped the diagnostics in 1901).
+    /// A time before the last is taken — a looped or restarted bag starts its time again, as
+    /// rclcpp's time source allows with its jump callbacks — and counted
+    /// (`error.clock_jumped_back`). Whether it was taken.
     pub fn heard(&self, clock: &Clock) -> bool {
         let time = clock.clock.to_nanos();
         if time < 0 {
+            self.problem("invalid_clock", format!("{CLOCK_TOPIC}: time {} s is before 1970, ignored", clock.clock.sec));
             return false;
         }
-        *lock(&self.sim) = Some(time);
+        let mut sim = lock(&self.sim);
+        if let Some(last) = sim.filter(|&last| time < last) {
+            let back = (last - time) as f64 * 1e-9;
+            self.problem("clock_jumped_back", format!("{CLOCK_TOPIC}: time went back {back:.3} s (a bag restarted?)"));
+        }
+        *sim = Some(time);
         true
+    }
+
+    fn problem(&self, key: &'static str, detail: String) {
+        let mut problems = lock(&self.problems);
+        if problems.len() < MAX_PROBLEMS {
+            problems.push(ClockProblem { key, detail });
+        }
+    }
+
+    /// What `/clock` did since the last call, for diagnostics to count.
+    pub fn take_problems(&self) -> Vec<ClockProblem> {
+        std::mem::take(&mut *lock(&self.problems))
     }
 
     /// The time now: wall time, or with sim time the `/clock` time, else `newest_input`.
@@ -125,6 +159,9 @@ mod tests {
         assert_eq!(sim.now(None), Some(3), "a restarted bag's clock goes back");
         assert!(!sim.heard(&Clock { clock: Time { sec: i32::MIN, nanosec: 0 } }), "1901 is no time");
         assert_eq!(sim.now(None), Some(3), "the absurd time is ignored");
+        let keys: Vec<_> = sim.take_problems().into_iter().map(|p| p.key).collect();
+        assert_eq!(keys, ["clock_jumped_back", "invalid_clock"], "both counted");
+        assert!(sim.take_problems().is_empty(), "taken once");
         sim.set_use_sim_time(false);
         assert!(sim.now(None).is_some_and(|t| t >= before), "back to wall time");
     }

@@ -210,6 +210,9 @@ impl DiagnosticsOut {
                 lock(&c.stats).error("incompatible_qos", problem.to_string());
             }
         }
+        for problem in s.clock.take_problems() {
+            lock(&s.first().stats).error(problem.key, problem.detail);
+        }
         let msg = self.report(s, || 0);
         s.recorder.write(&s.topics.diagnostics, &msg, &s.first().stats);
         if let Err(e) = self.publisher.async_publish(msg).await {
