@@ -1,7 +1,8 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 use super::*;
-use crate::node::tf::{map_to_odom, tf_message};
+use crate::msgs::convert::transform_message;
+use crate::node::tf::map_to_odom;
 
 /// A transform from a translation and a rotation about `axis` (shared with the TF tests).
 pub(crate) fn iso(t: [f64; 3], axis: [f64; 3], angle: f64) -> Isometry3<f64> {
@@ -24,12 +25,12 @@ fn robot() -> (TfHistory, Isometry3<f64>) {
     for i in 0..=20 {
         let t = 10 * S + i * S / 10;
         let odom_base = iso([t as f64 / S as f64, 0.0, 0.0], [0.0, 0.0, 1.0], 0.01 * i as f64);
-        assert!(tf.update(&tf_message(t, "odom", "base_link", &odom_base), false).is_empty());
+        assert!(tf.update(&transform_message(t, "odom", "base_link", &odom_base), false).is_empty());
     }
     let base_link = iso([0.2, 0.0, 0.4], [0.0, 1.0, 0.0], 0.1);
     let optical = iso([0.0, 0.03, 0.0], [1.0, -1.0, 1.0], 2.09);
-    assert!(tf.update(&tf_message(0, "base_link", "camera_link", &base_link), true).is_empty());
-    assert!(tf.update(&tf_message(0, "/camera_link", "camera_color_optical_frame", &optical), true).is_empty());
+    assert!(tf.update(&transform_message(0, "base_link", "camera_link", &base_link), true).is_empty());
+    assert!(tf.update(&transform_message(0, "/camera_link", "camera_color_optical_frame", &optical), true).is_empty());
     (tf, base_link * optical)
 }
 
@@ -50,7 +51,7 @@ fn looks_up_a_chain_at_a_stamp_between_samples() {
 fn looks_up_across_branches_and_inverse_directions() {
     let (mut tf, base_camera) = robot();
     let base_lidar = iso([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], 3.0);
-    tf.update(&tf_message(0, "base_link", "lidar", &base_lidar), true);
+    tf.update(&transform_message(0, "base_link", "lidar", &base_lidar), true);
     let at = 11 * S;
     let camera_lidar = tf.lookup("camera_color_optical_frame", "lidar", at).unwrap();
     assert!(close(&camera_lidar, &(base_camera.inverse() * base_lidar)));
@@ -74,7 +75,7 @@ fn refuses_to_extrapolate_and_names_what_is_missing() {
         })
     );
     assert_eq!(tf.lookup("map", "base_link", 11 * S), Err(TfLookupError::UnknownFrame { frame: "map".into() }));
-    tf.update(&tf_message(0, "world", "other", &Isometry3::identity()), true);
+    tf.update(&transform_message(0, "world", "other", &Isometry3::identity()), true);
     assert_eq!(
         tf.lookup("odom", "other", 11 * S),
         Err(TfLookupError::NotConnected { parent: "odom".into(), child: "other".into() })
@@ -85,7 +86,7 @@ fn refuses_to_extrapolate_and_names_what_is_missing() {
 fn history_is_bounded_by_the_cache_time() {
     let mut tf = TfHistory::default();
     for i in 0..400 {
-        tf.update(&tf_message(i * S / 10, "odom", "base_link", &Isometry3::identity()), false);
+        tf.update(&transform_message(i * S / 10, "odom", "base_link", &Isometry3::identity()), false);
     }
     // 40 s heard, 10 s kept.
     assert!(tf.lookup("odom", "base_link", 20 * S).is_err());
@@ -96,17 +97,17 @@ fn history_is_bounded_by_the_cache_time() {
 #[test]
 fn bad_transforms_are_reported_and_a_reparented_frame_starts_anew() {
     let mut tf = TfHistory::default();
-    let mut nan = tf_message(S, "odom", "base_link", &Isometry3::identity());
+    let mut nan = transform_message(S, "odom", "base_link", &Isometry3::identity());
     nan.transforms[0].transform.translation.x = f64::NAN;
     assert_eq!(tf.update(&nan, false).len(), 1);
-    assert_eq!(tf.update(&tf_message(S, "", "base_link", &Isometry3::identity()), false).len(), 1);
-    assert_eq!(tf.update(&tf_message(S, "a", "a", &Isometry3::identity()), false).len(), 1);
+    assert_eq!(tf.update(&transform_message(S, "", "base_link", &Isometry3::identity()), false).len(), 1);
+    assert_eq!(tf.update(&transform_message(S, "a", "a", &Isometry3::identity()), false).len(), 1);
     let long = "x".repeat(MAX_FRAME_ID_BYTES + 1);
-    let bad = tf.update(&tf_message(S, "odom", &long, &Isometry3::identity()), false);
+    let bad = tf.update(&transform_message(S, "odom", &long, &Isometry3::identity()), false);
     assert!(bad.len() == 1 && bad[0].contains("4 and 257 bytes"), "{bad:?}");
     assert!(!tf.knows(&long));
-    tf.update(&tf_message(S, "odom", "base_link", &Isometry3::identity()), false);
-    tf.update(&tf_message(2 * S, "map", "base_link", &Isometry3::identity()), false);
+    tf.update(&transform_message(S, "odom", "base_link", &Isometry3::identity()), false);
+    tf.update(&transform_message(2 * S, "map", "base_link", &Isometry3::identity()), false);
     assert!(matches!(tf.lookup("odom", "base_link", 2 * S), Err(TfLookupError::UnknownFrame { .. })));
     assert!(tf.lookup("map", "base_link", 2 * S).is_ok());
 }
@@ -114,16 +115,16 @@ fn bad_transforms_are_reported_and_a_reparented_frame_starts_anew() {
 #[test]
 fn a_loop_in_the_tree_ends_the_walk() {
     let mut tf = TfHistory::default();
-    tf.update(&tf_message(0, "a", "b", &Isometry3::identity()), true);
-    tf.update(&tf_message(0, "b", "a", &Isometry3::identity()), true);
-    tf.update(&tf_message(0, "x", "y", &Isometry3::identity()), true);
+    tf.update(&transform_message(0, "a", "b", &Isometry3::identity()), true);
+    tf.update(&transform_message(0, "b", "a", &Isometry3::identity()), true);
+    tf.update(&transform_message(0, "x", "y", &Isometry3::identity()), true);
     assert!(tf.lookup("a", "y", 0).is_err());
 }
 
 #[test]
 fn a_slack_takes_the_newest_sample_a_little_after_it() {
     let mut tf = TfHistory::with_slack(S / 10);
-    tf.update(&tf_message(S, "odom", "base_link", &iso([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0)), false);
+    tf.update(&transform_message(S, "odom", "base_link", &iso([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0)), false);
     let got = tf.lookup("odom", "base_link", S + S / 20).unwrap();
     assert!(close(&got, &iso([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0)));
     assert!(matches!(tf.lookup("odom", "base_link", S + S / 5), Err(TfLookupError::Extrapolation { .. })));
@@ -143,9 +144,9 @@ fn map_to_odom_composes_with_odom_to_camera_into_map_to_camera() {
 }
 
 #[test]
-fn tf_message_carries_the_transform() {
+fn transform_message_carries_the_transform() {
     let t = iso([1.0, 2.0, 3.0], [0.0, 0.0, 1.0], 0.3);
-    let m = tf_message(42, "map", "odom", &t);
+    let m = transform_message(42, "map", "odom", &t);
     let ts = &m.transforms[0];
     assert_eq!((ts.header.frame_id.as_str(), ts.child_frame_id.as_str()), ("map", "odom"));
     assert_eq!(ts.header.stamp.to_nanos(), 42);
@@ -161,10 +162,10 @@ fn a_transform_that_closes_a_loop_is_refused() {
     let (mut tf, base_camera) = robot();
     let camera = "camera_color_optical_frame";
     let before = tf.lookup("base_link", camera, 0).expect("the chain");
-    let bad = tf.update(&tf_message(0, camera, "base_link", &iso([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0)), true);
+    let bad = tf.update(&transform_message(0, camera, "base_link", &iso([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0)), true);
     assert_eq!(bad.len(), 1, "{bad:?}");
     assert!(bad[0].contains("loop"), "{bad:?}");
-    let bad = tf.update(&tf_message(10 * S, "base_link", "odom", &iso([0.0; 3], [0.0, 0.0, 1.0], 0.0)), false);
+    let bad = tf.update(&transform_message(10 * S, "base_link", "odom", &iso([0.0; 3], [0.0, 0.0, 1.0], 0.0)), false);
     assert!(bad.iter().any(|b| b.contains("loop")), "{bad:?}");
     assert!(close(&tf.lookup("base_link", camera, 0).expect("the chain, unchanged"), &before));
     assert!(close(&before, &base_camera));
@@ -174,7 +175,7 @@ fn a_transform_that_closes_a_loop_is_refused() {
 fn tf_batch(stamp: Stamp, links: impl IntoIterator<Item = (String, String)>) -> TFMessage {
     let transforms = links
         .into_iter()
-        .flat_map(|(parent, child)| tf_message(stamp, &parent, &child, &Isometry3::identity()).transforms)
+        .flat_map(|(parent, child)| transform_message(stamp, &parent, &child, &Isometry3::identity()).transforms)
         .collect();
     TFMessage { transforms }
 }
@@ -219,18 +220,18 @@ fn eviction_takes_from_the_longest_history_and_is_reported() {
     let mut tf = TfHistory::with_budget(100);
     let ms = S / 1000;
     for i in 0..60 {
-        assert!(tf.update(&tf_message(i * ms, "odom", "long", &Isometry3::identity()), false).is_empty());
+        assert!(tf.update(&transform_message(i * ms, "odom", "long", &Isometry3::identity()), false).is_empty());
     }
     for i in 0..30 {
-        assert!(tf.update(&tf_message(i * ms, "odom", "short", &Isometry3::identity()), false).is_empty());
+        assert!(tf.update(&transform_message(i * ms, "odom", "short", &Isometry3::identity()), false).is_empty());
     }
-    assert!(tf.update(&tf_message(0, "long", "cam", &Isometry3::identity()), true).is_empty());
+    assert!(tf.update(&transform_message(0, "long", "cam", &Isometry3::identity()), true).is_empty());
     for i in 30..39 {
-        assert!(tf.update(&tf_message(i * ms, "odom", "short", &Isometry3::identity()), false).is_empty());
+        assert!(tf.update(&transform_message(i * ms, "odom", "short", &Isometry3::identity()), false).is_empty());
     }
     assert_eq!((tf.samples(), tf.evicted()), (100, 0), "at the budget, nothing evicted yet");
     // One more: 101 > 100, down to the low-water mark 94: the 7 oldest of `long` go.
-    let report = tf.update(&tf_message(39 * ms, "odom", "short", &Isometry3::identity()), false);
+    let report = tf.update(&transform_message(39 * ms, "odom", "short", &Isometry3::identity()), false);
     assert_eq!(report.len(), 1, "{report:?}");
     assert!(report[0].contains("evicted the 7 oldest") && report[0].contains("\"long\""), "{report:?}");
     assert!(report[0].contains("budget of 100") && report[0].contains("7 evicted since the start"), "{report:?}");
@@ -255,7 +256,7 @@ fn a_real_robot_fits_the_budget_and_still_interpolates() {
         let mut msg = tf_batch(t, frames());
         // link_0 moves along x at 1 m/s.
         msg.transforms[0] =
-            tf_message(t, "odom", "link_0", &iso([t as f64 / S as f64, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0))
+            transform_message(t, "odom", "link_0", &iso([t as f64 / S as f64, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0))
                 .transforms
                 .remove(0);
         assert!(tf.update(&msg, false).is_empty());
@@ -273,10 +274,10 @@ fn a_real_robot_fits_the_budget_and_still_interpolates() {
 fn a_history_that_ages_out_gives_its_memory_back() {
     let mut tf = TfHistory::default();
     for i in 0..MAX_SAMPLES as i64 {
-        tf.update(&tf_message(i * S / 1000, "odom", "base_link", &Isometry3::identity()), false);
+        tf.update(&transform_message(i * S / 1000, "odom", "base_link", &Isometry3::identity()), false);
     }
     assert!(tf.links["base_link"].samples.capacity() >= MAX_SAMPLES);
-    tf.update(&tf_message(30 * S, "odom", "base_link", &Isometry3::identity()), false);
+    tf.update(&transform_message(30 * S, "odom", "base_link", &Isometry3::identity()), false);
     let link = &tf.links["base_link"];
     assert_eq!((link.samples.len(), tf.samples()), (1, 1));
     assert!(link.samples.capacity() < 16, "capacity {} kept after aging out", link.samples.capacity());

@@ -63,7 +63,8 @@ fn live_parameters_change_and_are_applied_where_they_act() {
     assert_eq!(live.apply("node.transform_tolerance_s", &ParameterValue::Double(0.25)), Ok(true));
     // The new tolerance future-dates the next map → odom.
     let buffer = Arc::new(Mutex::new(TfHistory::default()));
-    lock(&buffer).update(&super::super::tf::tf_message(0, "odom", "cam", &nalgebra::Isometry3::identity()), true);
+    lock(&buffer)
+        .update(&crate::msgs::convert::transform_message(0, "odom", "cam", &nalgebra::Isometry3::identity()), true);
     let mut b =
         TfBroadcast::new(&NodeParams { tf_mode: crate::params::TfMode::MapToOdom, ..NodeParams::default() }, buffer);
     b.set_tolerance_ns(tolerance_ns(0.25));

@@ -31,11 +31,6 @@ pub fn map_to_odom(map_camera: &Isometry3<f64>, odom_camera: &Isometry3<f64>) ->
     map_camera * odom_camera.inverse()
 }
 
-/// One `parent → child` transform as a TF message.
-pub fn tf_message(stamp: Stamp, parent: &str, child: &str, parent_child: &Isometry3<f64>) -> TFMessage {
-    convert::transform_message(stamp, parent, child, parent_child)
-}
-
 /// Why a localized frame sends no TF or no base pose.
 #[derive(Debug, Error, PartialEq)]
 pub enum TfError {
@@ -237,7 +232,7 @@ impl TfBroadcast {
             out.notes.push(note);
         }
         if to_camera {
-            out.tf = Some(tf_message(stamp, &self.frames.map, camera, map_camera));
+            out.tf = Some(convert::transform_message(stamp, &self.frames.map, camera, map_camera));
             out.kind = Some("map_to_camera");
             return;
         }
@@ -252,7 +247,7 @@ impl TfBroadcast {
                 self.last_map_odom = Some(map_odom);
                 // Future-dated (REP 105, as amcl): valid until the next localization is due.
                 let stamp = stamp.saturating_add(self.tolerance_ns);
-                out.tf = Some(tf_message(stamp, &self.frames.map, &self.frames.odom, &map_odom));
+                out.tf = Some(convert::transform_message(stamp, &self.frames.map, &self.frames.odom, &map_odom));
                 out.kind = Some("map_to_odom");
             }
             Err(source) => {
@@ -299,7 +294,7 @@ impl TfBroadcast {
     pub fn republish(&self, now: Stamp) -> Option<TFMessage> {
         let map_odom = self.last_map_odom.as_ref()?;
         let stamp = now.saturating_add(self.tolerance_ns);
-        Some(tf_message(stamp, &self.frames.map, &self.frames.odom, map_odom))
+        Some(convert::transform_message(stamp, &self.frames.map, &self.frames.odom, map_odom))
     }
 
     fn problem(&mut self, error: TfError) -> TfProblem {

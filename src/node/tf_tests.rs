@@ -3,6 +3,7 @@
 use nalgebra::Isometry3;
 
 use super::*;
+use crate::msgs::convert::transform_message;
 use crate::tf_buffer::tests::{close, iso};
 
 const S: i64 = 1_000_000_000;
@@ -32,9 +33,9 @@ fn odometry(buffer: &Mutex<TfHistory>) -> (Isometry3<f64>, Isometry3<f64>) {
     let base_cam = iso([0.1, 0.0, 0.5], [1.0, -1.0, 0.2], -1.2);
     let mut b = lock(buffer);
     for t in [10 * S, 11 * S] {
-        assert!(b.update(&tf_message(t, "odom", "base_link", &odom_base), false).is_empty());
+        assert!(b.update(&transform_message(t, "odom", "base_link", &odom_base), false).is_empty());
     }
-    assert!(b.update(&tf_message(0, "base_link", CAM, &base_cam), true).is_empty());
+    assert!(b.update(&transform_message(0, "base_link", CAM, &base_cam), true).is_empty());
     (odom_base, base_cam)
 }
 
