@@ -61,6 +61,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--params-file", type=pathlib.Path, help="ROS 2 params file for every replay and eval")
     ap.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                     help="parameter override for every replay (repeatable)")
+    ap.add_argument("-r", "--remap", action="append", default=[], metavar="FROM:=TO",
+                    help="topic remap for every replay and eval, as `angle-i2p replay -r` (repeatable)")
     ap.add_argument("--bag-param", action="append", default=[], metavar="GLOB:NAME:=VALUE",
                     help="parameter override for the bags whose name or path matches GLOB (repeatable)")
     ap.add_argument("--binary", type=pathlib.Path, help="the angle-i2p binary (default: $ANGLE_I2P_BIN, "
@@ -134,14 +136,26 @@ def params_args(args: argparse.Namespace, extra: list[str]) -> list[str]:
     return out
 
 
-def topics(binary: pathlib.Path, param_args: list[str]) -> dict:
-    """The effective topic names, as `angle-i2p params` prints them for these parameters."""
-    from ruamel.yaml import YAML
-    doc = YAML(typ="safe").load(run([binary, "params", *param_args]))
-    try:
-        return dict(doc["angle_i2p"]["ros__parameters"]["topics"])
-    except (KeyError, TypeError) as e:
-        raise BenchError(f"`angle-i2p params` printed no topics ({e})") from e
+# angle-i2p's topic names (src/params/topics.rs); renamed only by remap rules, as in ROS.
+DEFAULT_TOPICS = {
+    "map": "/map/points", "camera_info": "/camera/camera_info", "image": "/camera/image_raw/compressed",
+    "depth_prior": "/depth_prior/image", "correspondences": "/matcher/correspondences",
+    "ground_truth_pose": "/ground_truth/pose", "ground_truth_depth": "/ground_truth/depth",
+    "pose": "/angle_i2p/pose", "pose_with_covariance": "/angle_i2p/pose_with_covariance",
+    "output_correspondences": "/angle_i2p/correspondences",
+}
+
+
+def topics(remaps: list[str]) -> dict:
+    """The topic names under `FROM:=TO` remap rules (names without `/` are taken from the root)."""
+    absolute = lambda name: name if name.startswith("/") else "/" + name
+    rules = []
+    for rule in remaps:
+        if ":=" not in rule:
+            raise BenchError(f"remap rule {rule!r} is not FROM:=TO")
+        src, dst = rule.split(":=", 1)
+        rules.append((absolute(src), absolute(dst)))
+    return {key: next((dst for src, dst in rules if src == name), name) for key, name in DEFAULT_TOPICS.items()}
 
 
 @dataclasses.dataclass
@@ -150,8 +164,8 @@ class BagRuns:
     binary: pathlib.Path
     bag: pathlib.Path
     out_dir: pathlib.Path
-    param_args: list  # --params-file and -p arguments of every replay
-    eval_args: list  # --params-file of eval
+    param_args: list  # --params-file, -p and -r arguments of every replay
+    eval_args: list  # --params-file and -r of eval
     topics: dict
     frames: list  # bag_scoring.InputFrame, in stamp order
 
@@ -248,13 +262,14 @@ def poselib_run(frames: list) -> dict:
 def bench_bag(args, binary: pathlib.Path, bag: pathlib.Path, out_dir: pathlib.Path, methods: list[str]) -> dict:
     """Every method's replay and PoseLib on one bag, their timing rounds and verdicts."""
     extra = bag_params(bag, args.bag_param)
-    param_args = params_args(args, extra)
-    topic_map = topics(binary, param_args)
+    remap_args = [a for rule in args.remap for a in ("-r", rule)]
+    param_args = params_args(args, extra) + remap_args
+    topic_map = topics(args.remap)
     inputs, issues = bag_scoring.read_input(bag, topic_map)
     frames = [f for _, f in sorted(inputs.items()) if f.scorable() and f.correspondences is not None]
     if not frames:
         raise BenchError(f"{bag}: no frame with camera info, correspondences, ground-truth pose and depth")
-    eval_args = ["--params-file", str(args.params_file)] if args.params_file else []
+    eval_args = (["--params-file", str(args.params_file)] if args.params_file else []) + remap_args
     ctx = BagRuns(binary, bag, out_dir, param_args, eval_args, topic_map, frames)
     runs = [replay_and_eval(ctx, m) for m in methods]
     poselib = poselib_run(frames)

@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use angle_i2p::app::{self, describe, BagEdge};
 use angle_i2p::eval::{format_table, median, Summary};
-use angle_i2p::params::{resolve_cli, AppParams, TopicMap};
+use angle_i2p::params::{resolve_cli, resolve_command, AppParams, TopicMap};
 use angle_i2p::pipeline::{Localization, Localizer, Method};
 use angle_i2p::synth::{SynthConfig, PRESETS};
 
@@ -43,6 +43,10 @@ enum Command {
         /// applied after the params file.
         #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
         param: Vec<String>,
+        /// Topic remap `FROM:=TO` (e.g. `/matcher/correspondences:=/my/matches`): read and write
+        /// TO where angle-i2p's default is FROM, as the node's `--ros-args -r`; repeatable.
+        #[arg(short = 'r', long = "remap", value_name = "FROM:=TO")]
+        remap: Vec<String>,
         /// Print one line per frame.
         #[arg(long)]
         verbose: bool,
@@ -62,6 +66,10 @@ enum Command {
         /// Also write plots and an `index.html` with the table into this directory.
         #[arg(long)]
         report: Option<PathBuf>,
+        /// Topic remap `FROM:=TO` (e.g. `/matcher/correspondences:=/my/matches`): read and write
+        /// TO where angle-i2p's default is FROM, as the node's `--ros-args -r`; repeatable.
+        #[arg(short = 'r', long = "remap", value_name = "FROM:=TO")]
+        remap: Vec<String>,
     },
     /// Write training samples for the learned rejector (features, graphs, θ, labels) from a bag
     /// with ground truth: one folder of `.npy` arrays per frame.
@@ -75,6 +83,10 @@ enum Command {
         /// applied after the params file.
         #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
         param: Vec<String>,
+        /// Topic remap `FROM:=TO` (e.g. `/matcher/correspondences:=/my/matches`): read and write
+        /// TO where angle-i2p's default is FROM, as the node's `--ros-args -r`; repeatable.
+        #[arg(short = 'r', long = "remap", value_name = "FROM:=TO")]
+        remap: Vec<String>,
     },
     /// Print the last `/diagnostics` status of each name recorded in a bag (e.g. `node --record`).
     Diagnostics { bag: PathBuf },
@@ -144,8 +156,8 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Replay { bag, out, method, params_file, param, verbose } => {
-            let mut params = resolve_cli(params_file.as_deref(), &param)?;
+        Command::Replay { bag, out, method, params_file, param, remap, verbose } => {
+            let mut params = resolve_command(params_file.as_deref(), &param, &remap)?;
             if let Some(m) = method {
                 params.localizer.method = m;
             }
@@ -164,8 +176,8 @@ fn run(cli: Cli) -> Result<()> {
             println!("{report}");
             Ok(())
         }
-        Command::Export { bag, out, params_file, param } => {
-            let params = resolve_cli(params_file.as_deref(), &param)?;
+        Command::Export { bag, out, params_file, param, remap } => {
+            let params = resolve_command(params_file.as_deref(), &param, &remap)?;
             let report = app::export_samples(&bag, &out, &params)?;
             for s in &report.skipped {
                 eprintln!("warning: {s}");
@@ -178,8 +190,8 @@ fn run(cli: Cli) -> Result<()> {
             let params = resolve_cli(params_file.as_deref(), &param)?;
             print_params_file(&params)
         }
-        Command::Eval { bag, est, json, params_file, report } => {
-            let params = resolve_cli::<&str>(params_file.as_deref(), &[])?;
+        Command::Eval { bag, est, json, params_file, report, remap } => {
+            let params = resolve_command(params_file.as_deref(), &[] as &[&str], &remap)?;
             evaluate(&bag, &est, json, &params, report.as_deref())
         }
         Command::Synth { out, preset, config, seed, frames, inlier_ratio, correspondences, map_points, force } => {

@@ -125,6 +125,50 @@ fn default_method_is_the_learned_rejector() {
     assert_eq!(v["angle-i2p"]["frames"], 20, "{json}");
 }
 
+/// Topic names are remapped, not parameters (#36): a bag whose matcher publishes on another
+/// topic replays and scores with `-r FROM:=TO` (inputs and outputs alike), and an old params
+/// file's `topics.*` is refused with the rule that replaces it.
+#[test]
+fn a_bags_own_topic_names_are_remapped() {
+    use angle_i2p::params::TopicMap;
+    use angle_i2p::synth::SynthConfig;
+    let dir = tempfile::tempdir().unwrap();
+    let (bag, out) = (dir.path().join("in"), dir.path().join("out"));
+    let mut config = SynthConfig::preset("hard").unwrap();
+    (config.frames, config.seed) = (4, 9);
+    let theirs = TopicMap { correspondences: "/their/matches".into(), ..TopicMap::default() };
+    angle_i2p::synth::write_bag(&bag, &theirs, &config).unwrap();
+    let remaps = ["-r", "/matcher/correspondences:=/their/matches", "-r", "/angle_i2p/pose:=/our/pose"];
+    let text = run_ok(
+        Command::new(binary()).arg("replay").arg(&bag).arg("--out").arg(&out).args(["--method", "ransac"]).args(remaps),
+    );
+    assert!(text.contains("4 frames"), "{text}");
+    let json = run_ok(Command::new(binary()).arg("eval").arg(&bag).arg("--est").arg(&out).arg("--json").args(remaps));
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(v["ransac"]["frames"], 4, "{json}");
+    assert_eq!(v["ransac"]["RR"], 100.0, "{json}");
+    // Without the rules the matcher's topic is not there: no frame to localize.
+    let plain =
+        Command::new(binary()).arg("replay").arg(&bag).arg("--out").arg(dir.path().join("plain")).output().unwrap();
+    let said = format!("{}{}", String::from_utf8_lossy(&plain.stdout), String::from_utf8_lossy(&plain.stderr));
+    assert!(!said.contains("4 frames"), "{said}");
+    let old = dir.path().join("old.yaml");
+    std::fs::write(&old, "angle_i2p:\n  ros__parameters:\n    topics:\n      correspondences: /their/matches\n")
+        .unwrap();
+    let refused = Command::new(binary())
+        .arg("replay")
+        .arg(&bag)
+        .arg("--out")
+        .arg(dir.path().join("old"))
+        .arg("--params-file")
+        .arg(&old)
+        .output()
+        .unwrap();
+    assert!(!refused.status.success());
+    let why = String::from_utf8_lossy(&refused.stderr);
+    assert!(why.contains("-r /matcher/correspondences:=/their/matches"), "{why}");
+}
+
 /// `-p NAME:=VALUE` overrides a parameter at any depth; a misspelt name is an error naming it.
 #[test]
 fn parameter_overrides_apply_and_typos_are_errors() {

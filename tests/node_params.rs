@@ -165,9 +165,14 @@ fn inner_ros_parameters_rosout_and_clock() {
     let params = ParamClients::new(&mut ros);
     let list = call(&params.list, ListParametersRequest { prefixes: vec![], depth: 0 }, &log5);
     let names = &list.result.names;
-    for want in
-        ["pnp.min_inliers", "node.queue_depth", "node.tf_mode", "topics.pose", "limits.max_map_points", "use_sim_time"]
-    {
+    for want in [
+        "pnp.min_inliers",
+        "node.queue_depth",
+        "node.tf_mode",
+        "node.tf_topic",
+        "limits.max_map_points",
+        "use_sim_time",
+    ] {
         assert!(names.iter().any(|n| n == want), "{want} not listed: {names:?}");
     }
     assert!(!names.iter().any(|n| n == "node.use_sim_time"), "{names:?}");

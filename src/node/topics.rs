@@ -1,12 +1,12 @@
 //! The node's resolved topic names.
 //!
-//! ROS names without a leading `/` are relative to the node's namespace. The `topics.*`
-//! defaults are absolute because bags record absolute names; in the live node a topic left at
-//! its default is taken as relative (`/camera/camera_info` → `camera/camera_info`), so
-//! `-r __ns:=/cam0` (or launch's `push-ros-namespace`) moves every input and output under
-//! `/cam0` and two cameras do not collide. A value that differs from the default is used as
-//! given. `/diagnostics`, `/tf` and `/tf_static` stay absolute, as `diagnostic_updater` and
-//! tf2 have them (remap them, e.g. `-r /tf:=tf`, to keep them per robot).
+//! ROS names without a leading `/` are relative to the node's namespace. The topic names
+//! ([`TopicMap`]) are absolute in bags; the live node takes them as relative
+//! (`/camera/camera_info` → `camera/camera_info`), so `-r __ns:=/cam0` (or launch's
+//! `push-ros-namespace`) moves every input and output under `/cam0` and two cameras do not
+//! collide, and `-r FROM:=TO` renames any of them. `/diagnostics`, `/tf` and `/tf_static` stay
+//! absolute, as `diagnostic_updater` and tf2 have them (remap them, e.g. `-r /tf:=tf`, to keep
+//! them per robot).
 
 use std::convert::Infallible;
 
@@ -33,15 +33,6 @@ pub struct Topics {
     pub base_pose: String,
     /// `initialpose` (relative, as nav2's amcl has it).
     pub initial_pose: String,
-}
-
-/// `value`, made relative when it is the (absolute) default `default`.
-fn relative_if_default(value: &str, default: &str) -> String {
-    if value == default {
-        value.trim_start_matches('/').to_string()
-    } else {
-        value.to_string()
-    }
 }
 
 /// A camera of a several-camera node whose topic would not move under its namespace.
@@ -85,27 +76,17 @@ impl Topics {
         names: &Names,
         camera_topic: impl Fn(&'static str, &str) -> Result<String, E>,
     ) -> Result<Self, E> {
-        let (t, n, d) = (&params.topics, &params.node, TopicMap::default());
-        let topic =
-            |key: &'static str, value: &str, default: &str| camera_topic(key, &relative_if_default(value, default));
+        let (t, n) = (TopicMap::relative(), &params.node);
         Ok(Self {
-            camera_info: topic("topics.camera_info", &t.camera_info, &d.camera_info)?,
-            image: topic("topics.image", &t.image, &d.image)?,
+            camera_info: camera_topic("camera_info", &t.camera_info)?,
+            image: camera_topic("image", &t.image)?,
             image_raw: camera_topic("node.image_raw_topic", &n.image_raw_topic)?,
-            depth_prior: topic("topics.depth_prior", &t.depth_prior, &d.depth_prior)?,
-            correspondences: topic("topics.correspondences", &t.correspondences, &d.correspondences)?,
-            map: names.resolve(&relative_if_default(&t.map, &d.map)),
-            pose: topic("topics.pose", &t.pose, &d.pose)?,
-            pose_with_covariance: topic(
-                "topics.pose_with_covariance",
-                &t.pose_with_covariance,
-                &d.pose_with_covariance,
-            )?,
-            output_correspondences: topic(
-                "topics.output_correspondences",
-                &t.output_correspondences,
-                &d.output_correspondences,
-            )?,
+            depth_prior: camera_topic("depth_prior", &t.depth_prior)?,
+            correspondences: camera_topic("correspondences", &t.correspondences)?,
+            map: names.resolve(&t.map),
+            pose: camera_topic("pose", &t.pose)?,
+            pose_with_covariance: camera_topic("pose_with_covariance", &t.pose_with_covariance)?,
+            output_correspondences: camera_topic("output_correspondences", &t.output_correspondences)?,
             diagnostics: names.resolve(&n.diagnostics_topic),
             tf: names.resolve(&n.tf_topic),
             tf_static: names.resolve(&n.tf_static_topic),
@@ -133,7 +114,7 @@ mod tests {
         let root = topics(&[]);
         assert_eq!(root.camera_info, "/camera/camera_info");
         assert_eq!(root.pose, "/angle_i2p/pose");
-        let ns = topics(&["--ros-args", "-r", "__ns:=/cam0", "-p", "topics.map:=/shared/map"]);
+        let ns = topics(&["--ros-args", "-r", "__ns:=/cam0", "-r", "map/points:=/shared/map"]);
         for t in [
             &ns.camera_info,
             &ns.image,
@@ -175,9 +156,9 @@ mod tests {
             );
         }
         let mut shared = r.clone();
-        shared.topics.correspondences = "/matcher/all".into();
+        shared.node.base_pose_topic = "/base_pose".into();
         let err = Topics::for_camera(&shared, &names, "cam0").unwrap_err();
-        assert_eq!(err.key, "topics.correspondences");
+        assert_eq!(err.key, "node.base_pose_topic");
         assert!(Topics::for_camera(&shared, &names, "").is_ok(), "one camera may read any topic");
     }
 }

@@ -1,5 +1,5 @@
 //! Every parameter of angle-i2p. The core's ([`LocalizerParams`]: what [`crate::pipeline::Localizer`]
-//! needs) and the edges' ([`AppParams`]: topics, the live node, input limits) are separate types,
+//! needs) and the edges' ([`AppParams`]: the live node, input limits, the bag commands' topic names) are separate types,
 //! so that the core depends on no edge; in a params file they sit side by side under
 //! `ros__parameters` (`params/angle_i2p.yaml`, the parameters a deployment sets; `params/expert.yaml`,
 //! every parameter), as they always did. [`resolve`] layers the
@@ -28,7 +28,7 @@ pub struct CameraParams {
 }
 
 pub use node::{MapQos, MapSource, NodeParams, TfMode};
-pub use resolve::{resolve, resolve_cli, Layers, ResolveError};
+pub use resolve::{resolve, resolve_cli, resolve_command, Layers, ResolveError};
 pub use ros_args::{ArgsError, LogLevel, Names, ParamOverride, Remap, RosArgs, DEFAULT_NODE_NAME};
 pub use topics::TopicMap;
 pub use validate::InvalidParam;
@@ -40,7 +40,10 @@ pub struct AppParams {
     /// The core's parameters; their keys sit at the top level (`method`, `pnp.*`, …).
     #[serde(flatten)]
     pub localizer: LocalizerParams,
-    /// Topic names.
+    /// The topic names of the bag commands (`replay`, `eval`, `export`): the defaults under the
+    /// command's `-r` remaps ([`TopicMap::remapped`]). Not a parameter; the live node resolves
+    /// its own names under its namespace (`node::topics`).
+    #[serde(skip)]
     pub topics: TopicMap,
     /// The live node: queue, frame matching, TF, diagnostics, debug image.
     pub node: NodeParams,
@@ -125,7 +128,7 @@ mod tests {
             v.as_mapping().unwrap().keys().map(|k| k.as_str().unwrap().to_string()).collect()
         };
         let core = top(serde_yaml::to_value(LocalizerParams::default()).unwrap());
-        let mut edges = vec!["topics".to_string(), "node".to_string(), "limits".to_string()];
+        let mut edges = vec!["node".to_string(), "limits".to_string()];
         edges.extend(top(serde_yaml::to_value(NodeParams::default()).unwrap()));
         assert!(core.iter().all(|k| !edges.contains(k)), "{core:?} vs {edges:?}");
     }

@@ -58,7 +58,7 @@ pub struct NodeParams {
     pub min_rate_hz: f64,
     /// Publish `debug_image_topic` (sensor_msgs/Image rgb8): the camera image with kept
     /// correspondences green and rejected ones red. Subscribes to the compressed image topic
-    /// (`topics.image`) and to `image_raw_topic` (sensor_msgs/Image rgb8, bgr8, mono8, rgba8,
+    /// (the `image` topic, CompressedImage) and to `image_raw_topic` (sensor_msgs/Image rgb8, bgr8, mono8, rgba8,
     /// bgra8), and waits for one of them.
     pub debug_image: bool,
     pub debug_image_topic: String,
@@ -73,7 +73,7 @@ pub struct NodeParams {
     /// Where the map may come from (see [`MapSource`]): who may change the map.
     pub map_source: MapSource,
     /// A PLY or PCD file read as the map at start (ASCII or binary); empty: the map comes only
-    /// from `topics.map`. A map on the topic later replaces it (unless `map_source: file`).
+    /// from the map topic. A map on the topic later replaces it (unless `map_source: file`).
     pub map_path: String,
     /// The frame of the points in `map_path`.
     pub map_frame_id: String,

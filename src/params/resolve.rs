@@ -10,7 +10,7 @@ use serde_yaml::Value;
 use super::ros_args::{ArgsError, Names, RosArgs, DEFAULT_NODE_NAME};
 use super::tree::{deep_merge, dotted, undot};
 use super::validate::InvalidParam;
-use super::{AppParams, NodeParams};
+use super::{AppParams, NodeParams, TopicMap};
 use crate::reject::network_params::ModelConstant;
 
 /// Where the parameters come from, lowest first (the defaults are below them all).
@@ -39,6 +39,12 @@ pub enum ResolveError {
     /// A parameter an earlier version had, and what became of it.
     #[error("parameters: `{name}` is no parameter any more: {why}; remove it from the params file")]
     Retired { name: String, why: &'static str },
+    /// A `topics.*` name (earlier versions had them): remapping renames topics now.
+    #[error(
+        "parameters: `topics.{key}` is no parameter any more: topics are renamed by remapping, as for every ROS node — \
+         `-r {rule}` (after `node --ros-args`, or given to replay, eval and export); remove it from the params file"
+    )]
+    TopicRenamed { key: String, rule: String },
     /// A value of the wrong type, as serde words it.
     #[error("parameters: {message}")]
     Rejected { message: String },
@@ -57,6 +63,7 @@ pub fn resolve(layers: &Layers) -> Result<AppParams, ResolveError> {
     }
     deep_merge(&mut overrides, &override_layer(layers.ros_args, layers.names));
     nest_flat_node_keys(&mut overrides);
+    refuse_topic_names(&overrides)?;
     let rejected = |e: serde_yaml::Error| ResolveError::Rejected { message: e.to_string() };
     let mut tree = serde_yaml::to_value(AppParams::default()).map_err(rejected)?;
     check_names("", &overrides, &tree)?;
@@ -64,14 +71,42 @@ pub fn resolve(layers: &Layers) -> Result<AppParams, ResolveError> {
     let mut params: AppParams = serde_yaml::from_value(tree).map_err(rejected)?;
     // Which model constants a layer set: those are held against the model's metadata at load.
     params.localizer.network.given = ModelConstant::given_in(overrides.get("network"));
+    params.topics = TopicMap::remapped(layers.names);
     params.validate()?;
     Ok(params)
+}
+
+/// An old params file's `topics.*`: refused with the remap rule that replaces it.
+fn refuse_topic_names(overrides: &Value) -> Result<(), ResolveError> {
+    let Some(topics) = overrides.get("topics") else { return Ok(()) };
+    let Some((key, value)) = topics.as_mapping().and_then(|m| m.iter().next()) else {
+        return Err(ResolveError::Retired {
+            name: "topics".into(),
+            why: "topics are renamed by remapping (`-r FROM:=TO`), as for every ROS node",
+        });
+    };
+    let key = key.as_str().map_or_else(|| format!("{key:?}"), str::to_string);
+    let to = value.as_str().map_or_else(|| format!("{value:?}"), str::to_string);
+    match TopicMap::default().remap_rule(&key, &to) {
+        Some(rule) => Err(ResolveError::TopicRenamed { key, rule }),
+        None => Err(ResolveError::Unknown { name: format!("topics.{key}"), expected: vec![] }),
+    }
 }
 
 /// The CLI's parameters: its `--params-file` and `-p NAME:=VALUE` overrides, resolved as the
 /// node (named [`DEFAULT_NODE_NAME`], no namespace) resolves its own.
 pub fn resolve_cli<S: AsRef<str>>(params_file: Option<&Path>, overrides: &[S]) -> Result<AppParams, ResolveError> {
-    let ros_args = RosArgs::from_overrides(overrides)?;
+    resolve_command(params_file, overrides, &[] as &[&str])
+}
+
+/// A bag command's parameters: [`resolve_cli`]'s, with its `-r FROM:=TO` remaps renaming the
+/// topics it reads and writes ([`AppParams::topics`]).
+pub fn resolve_command<S: AsRef<str>, R: AsRef<str>>(
+    params_file: Option<&Path>,
+    overrides: &[S],
+    remaps: &[R],
+) -> Result<AppParams, ResolveError> {
+    let ros_args = RosArgs::from_cli(overrides, remaps)?;
     let names = Names::new(DEFAULT_NODE_NAME, &ros_args);
     resolve(&Layers { names: &names, params_file, ros_args: &ros_args })
 }
@@ -213,6 +248,25 @@ mod tests {
         assert!(matches!(e, ResolveError::Unknown { .. }), "{e}");
     }
 
+    /// `topics.*` went (#36): an old params file is told the remap rule that replaces its name.
+    #[test]
+    fn an_old_topic_name_is_refused_with_its_remap_rule() {
+        let tmp = tempfile::tempdir().unwrap();
+        let f = tmp.path().join("old.yaml");
+        std::fs::write(&f, "angle_i2p:\n  ros__parameters:\n    topics:\n      correspondences: /my/matches\n")
+            .unwrap();
+        let e = resolve_cli::<&str>(Some(&f), &[]).unwrap_err();
+        assert!(e.to_string().contains("-r /matcher/correspondences:=/my/matches"), "{e}");
+        let e = resolve_cli(None, &["topics.pose:=/p"]).unwrap_err();
+        assert!(e.to_string().contains("-r /angle_i2p/pose:=/p"), "{e}");
+        let e = resolve_cli(None, &["topics.posse:=/p"]).unwrap_err();
+        assert!(matches!(e, ResolveError::Unknown { .. }), "{e}");
+        // What replaces them: a command's remaps rename the topics it reads and writes.
+        let r = resolve_command(None, &["method:=ransac"], &["/matcher/correspondences:=/my/matches"]).unwrap();
+        assert_eq!(r.topics.correspondences, "/my/matches");
+        assert_eq!(r.topics.pose, "/angle_i2p/pose");
+    }
+
     #[test]
     fn params_merge_files_and_overrides_and_split_node_keys() {
         let tmp = tempfile::tempdir().unwrap();
@@ -226,8 +280,8 @@ mod tests {
             "--ros-args",
             "-p",
             "stamp_tolerance_ns:=1000",
-            "-p",
-            "topics.pose:=/p",
+            "-r",
+            "/angle_i2p/pose:=/p",
             "-p",
             "other:seed:=1",
         ])

@@ -105,11 +105,15 @@ fn split_rule(what: &'static str, rule: &str) -> Result<(Option<String>, String,
 }
 
 impl RosArgs {
-    /// The ROS arguments of bare `-p NAME:=VALUE` overrides, as the CLI takes them.
-    pub fn from_overrides<S: AsRef<str>>(overrides: &[S]) -> Result<Self, ArgsError> {
+    /// The ROS arguments of a command's bare `-p NAME:=VALUE` overrides and `-r FROM:=TO`
+    /// remaps, as the CLI takes them.
+    pub fn from_cli<S: AsRef<str>, R: AsRef<str>>(overrides: &[S], remaps: &[R]) -> Result<Self, ArgsError> {
         let mut tokens = vec!["--ros-args"];
         for o in overrides {
             tokens.extend(["-p", o.as_ref()]);
+        }
+        for r in remaps {
+            tokens.extend(["-r", r.as_ref()]);
         }
         Self::parse(&tokens)
     }

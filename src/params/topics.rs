@@ -1,11 +1,12 @@
-//! Topic names of the inputs and outputs (`topics.*`): a parameter of both edges, bag replay
-//! and the live node. What each topic carries is the edges' business ([`crate::bag`]).
+//! Topic names of the inputs and outputs, shared by both edges (bag replay and the live node).
+//! They are no parameters: as for every ROS node, remapping renames them — `--ros-args -r
+//! FROM:=TO` for the node, `-r FROM:=TO` for the bag commands — and namespaces move them. What
+//! each topic carries is the edges' business ([`crate::bag`]).
 
-use serde::{Deserialize, Serialize};
+use super::ros_args::Names;
 
-/// Topic names, inputs and outputs; defaults are those of the shared bags.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+/// Topic names, inputs and outputs; the defaults are those of the shared bags.
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct TopicMap {
     /// `sensor_msgs/msg/PointCloud2`, once.
     pub map: String,
@@ -43,5 +44,74 @@ impl Default for TopicMap {
             pose_with_covariance: "/angle_i2p/pose_with_covariance".into(),
             output_correspondences: "/angle_i2p/correspondences".into(),
         }
+    }
+}
+
+impl TopicMap {
+    /// Each name mapped by `rename` (resolution under a namespace and remaps).
+    pub fn map_names(&self, rename: impl Fn(&str) -> String) -> Self {
+        Self {
+            map: rename(&self.map),
+            camera_info: rename(&self.camera_info),
+            image: rename(&self.image),
+            depth_prior: rename(&self.depth_prior),
+            correspondences: rename(&self.correspondences),
+            ground_truth_pose: rename(&self.ground_truth_pose),
+            ground_truth_depth: rename(&self.ground_truth_depth),
+            pose: rename(&self.pose),
+            pose_with_covariance: rename(&self.pose_with_covariance),
+            output_correspondences: rename(&self.output_correspondences),
+        }
+    }
+
+    /// The default names as a bag command has them: absolute, each under the command's remaps
+    /// (`-r /matcher/correspondences:=/my/matches` reads and writes `/my/matches`).
+    pub fn remapped(names: &Names) -> Self {
+        Self::default().map_names(|name| names.resolve(name))
+    }
+
+    /// The default names made relative (`camera/camera_info`), as the live node has them: they
+    /// move with its namespace (`-r __ns:=/cam0`) before its remaps apply.
+    pub fn relative() -> Self {
+        Self::default().map_names(|name| name.trim_start_matches('/').to_string())
+    }
+
+    /// The remap rule that gives the topic of `key` (a field's name, as `topics.KEY` was) the
+    /// name `to`; `None` for a key that names no topic.
+    pub fn remap_rule(&self, key: &str, to: &str) -> Option<String> {
+        let from = match key {
+            "map" => &self.map,
+            "camera_info" => &self.camera_info,
+            "image" => &self.image,
+            "depth_prior" => &self.depth_prior,
+            "correspondences" => &self.correspondences,
+            "ground_truth_pose" => &self.ground_truth_pose,
+            "ground_truth_depth" => &self.ground_truth_depth,
+            "pose" => &self.pose,
+            "pose_with_covariance" => &self.pose_with_covariance,
+            "output_correspondences" => &self.output_correspondences,
+            _ => return None,
+        };
+        Some(format!("{from}:={to}"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::params::RosArgs;
+
+    #[test]
+    fn remaps_rename_a_bag_commands_topics_and_only_those() {
+        let args =
+            RosArgs::parse(&["--ros-args", "-r", "/matcher/correspondences:=/m", "-r", "angle_i2p/pose:=/p"]).unwrap();
+        let t = TopicMap::remapped(&Names::new("angle_i2p", &args));
+        assert_eq!((t.correspondences.as_str(), t.pose.as_str()), ("/m", "/p"), "absolute and relative rules");
+        assert_eq!(t.map, "/map/points");
+        assert_eq!(TopicMap::remapped(&Names::new("angle_i2p", &RosArgs::default())), TopicMap::default());
+        assert_eq!(TopicMap::relative().camera_info, "camera/camera_info");
+        assert_eq!(t.remap_rule("pose", "/x").as_deref(), Some("/p:=/x"));
+        assert_eq!(TopicMap::default().remap_rule("image", "/i").as_deref(), Some("/camera/image_raw/compressed:=/i"));
+        assert_eq!(t.remap_rule("nope", "/x"), None);
     }
 }
