@@ -30,7 +30,7 @@ pub struct BagEdge<'a> {
     pub topics: &'a TopicMap,
     pub limits: &'a InputLimits,
     pub pixels: crate::camera::PixelSpace,
-    /// Where the robot's odometry is in a bag (`node.tf_topic`, `node.tf_static_topic`,
+    /// Where the robot's odometry is in a bag (`/tf`, `/tf_static` under the command's remaps,
     /// `node.odom_frame`): frames get theirs for tracking.
     pub odometry: OdometryTopics,
 }
@@ -42,7 +42,7 @@ impl<'a> BagEdge<'a> {
             topics: &params.topics,
             limits: &params.limits,
             pixels: params.camera.pixels,
-            odometry: OdometryTopics::of(&params.node),
+            odometry: OdometryTopics::of(&params.topics, &params.node),
         }
     }
 }

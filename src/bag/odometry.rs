@@ -7,7 +7,7 @@ use nalgebra::Isometry3;
 
 use crate::frame::Stamp;
 use crate::msgs::{from_cdr, TFMessage};
-use crate::params::NodeParams;
+use crate::params::{NodeParams, TopicMap};
 use crate::tf_buffer::TfHistory;
 
 /// Transforms left out of a bag's TF reported by name, at most (the rest are counted).
@@ -23,16 +23,16 @@ pub struct OdometryTopics {
 }
 
 impl OdometryTopics {
-    /// The node's own settings (`tf_topic`, `tf_static_topic`, `odom_frame`), so one
-    /// configuration serves the robot live and its recordings.
-    pub fn of(node: &NodeParams) -> Self {
-        Self { tf: node.tf_topic.clone(), tf_static: node.tf_static_topic.clone(), odom_frame: node.odom_frame.clone() }
+    /// The TF topics of `topics` and the node's own `odom_frame`, so one configuration serves
+    /// the robot live and its recordings.
+    pub fn of(topics: &TopicMap, node: &NodeParams) -> Self {
+        Self { tf: topics.tf.clone(), tf_static: topics.tf_static.clone(), odom_frame: node.odom_frame.clone() }
     }
 }
 
 impl Default for OdometryTopics {
     fn default() -> Self {
-        Self::of(&NodeParams::default())
+        Self::of(&TopicMap::default(), &NodeParams::default())
     }
 }
 

@@ -22,7 +22,7 @@ use super::queue::DropOldestQueue;
 use super::readers::{self, Readers};
 use super::recorder::Recorder;
 use super::tf::TfBroadcast;
-use super::topics::Topics;
+use super::topics::{self, Topics};
 use crate::frame::{MonotonicNs, PartKind};
 use crate::limits::InputLimits;
 use crate::map_index::swap::MapSwap;
@@ -60,7 +60,7 @@ impl CameraSetup {
             .into_iter()
             .enumerate()
             .map(|(i, name)| {
-                let topics = Topics::for_camera(resolved, names, name)?;
+                let topics = topics::of_camera(names, name);
                 let mut broadcast = TfBroadcast::new(&resolved.node, tf_buffer.clone());
                 if i > 0 {
                     broadcast = broadcast.without_map_to_odom();

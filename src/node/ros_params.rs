@@ -1,5 +1,5 @@
 //! The node's parameters as ROS parameters: every parameter of [`AppParams`] declared under its
-//! dotted name (`pnp.threshold_px`, `node.queue_depth`, `node.tf_topic`; `use_sim_time` at the top
+//! dotted name (`pnp.threshold_px`, `node.queue_depth`, `node.odom_frame`; `use_sim_time` at the top
 //! level, as ROS has it) with its resolved value, served by ros2-client's parameter services,
 //! so `ros2 param list/get/dump/describe` work and a dump reads back as a params file.
 //!

@@ -31,8 +31,11 @@ fn every_parameter_is_declared_under_its_dotted_name_with_its_value() {
     assert_eq!(value_of(&declared, "pnp.threshold_px"), &ParameterValue::Double(4.5));
     assert_eq!(value_of(&declared, "node.queue_depth"), &ParameterValue::Integer(7));
     assert_eq!(value_of(&declared, "node.tf_mode"), &ParameterValue::String("auto".into()));
-    assert_eq!(value_of(&declared, "node.tf_topic"), &ParameterValue::String("/tf".into()));
-    assert!(declared.iter().all(|p| !p.name.starts_with("topics.")), "topic names are remapped, not parameters");
+    assert_eq!(value_of(&declared, "node.odom_frame"), &ParameterValue::String("odom".into()));
+    assert!(
+        declared.iter().all(|p| !p.name.starts_with("topics.") && !p.name.ends_with("_topic")),
+        "topic names are remapped, not parameters"
+    );
     // use_sim_time where ROS tools look for it, not under node.
     assert_eq!(value_of(&declared, "use_sim_time"), &ParameterValue::Boolean(true));
     assert!(declared.iter().all(|p| p.name != "node.use_sim_time"));

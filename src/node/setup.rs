@@ -13,7 +13,7 @@ use super::clock::NodeClock;
 use super::initial_pose::GateWidth;
 use super::log::{info, lock};
 use super::recorder::Recorder;
-use super::topics::Topics;
+use super::topics::{self, Topics};
 use crate::frame::PartKind;
 use crate::limits::InputLimits;
 use crate::params::{AppParams, Names, NodeParams, TfMode};
@@ -44,7 +44,7 @@ pub struct Setup {
 
 impl Setup {
     pub fn new(names: Names, resolved: &AppParams, record: Option<&Path>) -> Result<Self> {
-        let topics = Topics::new(resolved, &names);
+        let topics = topics::of_node(&names);
         let np: NodeParams = resolved.node.clone();
         let params = resolved.localizer.clone();
         let recorder = match record {

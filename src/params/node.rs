@@ -21,7 +21,7 @@ pub struct NodeParams {
     /// Parts whose `header.stamp` differ by at most this are joined into one frame
     /// (0 = exact match, as in bags).
     pub stamp_tolerance_ns: i64,
-    /// Broadcast the localization on `tf_topic` (which transform: `tf_mode`).
+    /// Broadcast the localization on `/tf` (which transform: `tf_mode`).
     pub publish_tf: bool,
     /// Which transform is broadcast (see [`TfMode`]).
     pub tf_mode: TfMode,
@@ -30,15 +30,13 @@ pub struct NodeParams {
     pub map_frame: String,
     /// REP 105's `odom`: the TF broadcast is `map_frame → odom_frame` = (map→camera) ·
     /// (odom→camera)⁻¹, with `odom_frame → <camera frame>` looked up at the image's stamp through
-    /// any chain of frames heard on `tf_topic` / `tf_static_topic` (interpolated between
+    /// any chain of frames heard on `/tf` / `/tf_static` (interpolated between
     /// samples). Empty: `map → camera` (as `tf_mode: map_to_camera`).
     pub odom_frame: String,
-    /// REP 105's `base_link`: `base_pose_topic` is its pose in the map, map→camera ·
-    /// (base→camera)⁻¹ with base→camera looked up at the image's stamp. Empty: no base pose.
+    /// REP 105's `base_link`: its pose in the map (map→camera · (base→camera)⁻¹, base→camera
+    /// looked up at the image's stamp) is published on `angle_i2p/base_pose` when that chain is
+    /// known. Empty: no base pose.
     pub base_frame: String,
-    /// geometry_msgs/PoseStamped of `base_frame` in `map_frame`, published when the chain
-    /// base → camera is known.
-    pub base_pose_topic: String,
     /// The last `map → odom` is sent again at this rate, stamped `transform_tolerance_s` after
     /// the node's clock (as amcl does between updates); 0: only once per localized frame.
     pub tf_publish_rate_hz: f64,
@@ -56,18 +54,11 @@ pub struct NodeParams {
     pub diagnostics_window_s: f64,
     /// Frames (and messages per input) per second below which the diagnostics WARN; 0: never.
     pub min_rate_hz: f64,
-    /// Publish `debug_image_topic` (sensor_msgs/Image rgb8): the camera image with kept
-    /// correspondences green and rejected ones red. Subscribes to the compressed image topic
-    /// (the `image` topic, CompressedImage) and to `image_raw_topic` (sensor_msgs/Image rgb8, bgr8, mono8, rgba8,
-    /// bgra8), and waits for one of them.
+    /// Publish `angle_i2p/debug_image` (sensor_msgs/Image rgb8): the camera image with kept
+    /// correspondences green and rejected ones red. Subscribes to the compressed image
+    /// (`camera/image_raw/compressed`) and to `camera/image_raw` (sensor_msgs/Image rgb8, bgr8,
+    /// mono8, rgba8, bgra8), and waits for one of them.
     pub debug_image: bool,
-    pub debug_image_topic: String,
-    pub image_raw_topic: String,
-    /// Output topics that are not in the topic map.
-    pub diagnostics_topic: String,
-    pub tf_topic: String,
-    /// Static transforms, read with `odom_frame` set.
-    pub tf_static_topic: String,
     /// Durability of the map subscription (see [`MapQos`]).
     pub map_qos: MapQos,
     /// Where the map may come from (see [`MapSource`]): who may change the map.
@@ -77,10 +68,8 @@ pub struct NodeParams {
     pub map_path: String,
     /// The frame of the points in `map_path`.
     pub map_frame_id: String,
-    /// geometry_msgs/PoseWithCovarianceStamped of the camera in the map: a gate on the poses
-    /// (see `crate::node::initial_pose`), `~/relocalize` drops it.
-    pub initialpose_topic: String,
-    /// The gate's half-width in standard deviations of the initial pose's covariance …
+    /// The gate of an `initialpose` (geometry_msgs/PoseWithCovarianceStamped of the camera in
+    /// the map; see `crate::node::initial_pose`, `~/relocalize` drops it): its half-width in standard deviations of the initial pose's covariance …
     pub initialpose_gate_sigmas: f64,
     /// … but at least this far (metres) …
     pub initialpose_min_radius_m: f64,
@@ -93,7 +82,7 @@ pub struct NodeParams {
     /// (relative to the node's) that the camera's relative topics and its `relocalize` service
     /// move under (`cam0/camera/camera_info`, `cam0/angle_i2p/pose`, …), with its own frame
     /// assembly, queue and worker; the map, TF and diagnostics stay the node's. Empty: one camera,
-    /// topics as configured. See docs/multi-camera.md.
+    /// the node's own topics. See docs/multi-camera.md.
     pub cameras: Vec<String>,
 }
 
@@ -180,7 +169,6 @@ impl Default for NodeParams {
             map_frame: "map".into(),
             odom_frame: "odom".into(),
             base_frame: "base_link".into(),
-            base_pose_topic: "angle_i2p/base_pose".into(),
             tf_publish_rate_hz: 20.0,
             transform_tolerance_s: 0.1,
             require_map: true,
@@ -189,16 +177,10 @@ impl Default for NodeParams {
             diagnostics_window_s: 5.0,
             min_rate_hz: 1.0,
             debug_image: false,
-            debug_image_topic: "angle_i2p/debug_image".into(),
-            image_raw_topic: "camera/image_raw".into(),
-            diagnostics_topic: "/diagnostics".into(),
-            tf_topic: "/tf".into(),
-            tf_static_topic: "/tf_static".into(),
             map_qos: MapQos::Auto,
             map_source: MapSource::FileAndTopic,
             map_path: String::new(),
             map_frame_id: "map".into(),
-            initialpose_topic: "initialpose".into(),
             initialpose_gate_sigmas: 3.0,
             initialpose_min_radius_m: 0.5,
             initialpose_min_angle_deg: 15.0,

@@ -39,12 +39,12 @@ pub enum ResolveError {
     /// A parameter an earlier version had, and what became of it.
     #[error("parameters: `{name}` is no parameter any more: {why}; remove it from the params file")]
     Retired { name: String, why: &'static str },
-    /// A `topics.*` name (earlier versions had them): remapping renames topics now.
+    /// A topic name earlier versions had as a parameter: remapping renames topics now.
     #[error(
-        "parameters: `topics.{key}` is no parameter any more: topics are renamed by remapping, as for every ROS node — \
+        "parameters: `{name}` is no parameter any more: topics are renamed by remapping, as for every ROS node — \
          `-r {rule}` (after `node --ros-args`, or given to replay, eval and export); remove it from the params file"
     )]
-    TopicRenamed { key: String, rule: String },
+    TopicRenamed { name: String, rule: String },
     /// A value of the wrong type, as serde words it.
     #[error("parameters: {message}")]
     Rejected { message: String },
@@ -76,20 +76,47 @@ pub fn resolve(layers: &Layers) -> Result<AppParams, ResolveError> {
     Ok(params)
 }
 
-/// An old params file's `topics.*`: refused with the remap rule that replaces it.
+/// Topic-name parameters of earlier versions (`topics.KEY`, `node.*_topic`), each with the
+/// topic it named ([`TopicMap::remap_rule`]'s key).
+const TOPIC_PARAMETERS: [(&str, &str); 7] = [
+    ("image_raw_topic", "image_raw"),
+    ("debug_image_topic", "debug_image"),
+    ("base_pose_topic", "base_pose"),
+    ("initialpose_topic", "initial_pose"),
+    ("diagnostics_topic", "diagnostics"),
+    ("tf_topic", "tf"),
+    ("tf_static_topic", "tf_static"),
+];
+
+/// An old params file's topic name (`topics.*`, `node.*_topic`, flat or not): refused with the
+/// remap rule that replaces it. The rule's FROM is relative where the node's name is, so it
+/// also holds under a namespace.
 fn refuse_topic_names(overrides: &Value) -> Result<(), ResolveError> {
-    let Some(topics) = overrides.get("topics") else { return Ok(()) };
-    let Some((key, value)) = topics.as_mapping().and_then(|m| m.iter().next()) else {
-        return Err(ResolveError::Retired {
-            name: "topics".into(),
-            why: "topics are renamed by remapping (`-r FROM:=TO`), as for every ROS node",
-        });
-    };
-    let key = key.as_str().map_or_else(|| format!("{key:?}"), str::to_string);
-    let to = value.as_str().map_or_else(|| format!("{value:?}"), str::to_string);
-    match TopicMap::default().remap_rule(&key, &to) {
-        Some(rule) => Err(ResolveError::TopicRenamed { key, rule }),
-        None => Err(ResolveError::Unknown { name: format!("topics.{key}"), expected: vec![] }),
+    let text = |v: &Value| v.as_str().map_or_else(|| format!("{v:?}"), str::to_string);
+    let mut found: Vec<(String, String, String)> = Vec::new();
+    if let Some(topics) = overrides.get("topics") {
+        let Some(map) = topics.as_mapping().filter(|m| !m.is_empty()) else {
+            return Err(ResolveError::Retired {
+                name: "topics".into(),
+                why: "topics are renamed by remapping (`-r FROM:=TO`)",
+            });
+        };
+        found.extend(map.iter().map(|(k, v)| (format!("topics.{}", text(k)), text(k), text(v))));
+    }
+    for (old, key) in TOPIC_PARAMETERS {
+        for (name, value) in [
+            (format!("node.{old}"), overrides.get("node").and_then(|n| n.get(old))),
+            (old.to_string(), overrides.get(old)),
+        ] {
+            if let Some(v) = value {
+                found.push((name, key.to_string(), text(v)));
+            }
+        }
+    }
+    let Some((name, key, to)) = found.into_iter().next() else { return Ok(()) };
+    match TopicMap::relative().remap_rule(&key, &to) {
+        Some(rule) => Err(ResolveError::TopicRenamed { name, rule }),
+        None => Err(ResolveError::Unknown { name, expected: vec![] }),
     }
 }
 
@@ -248,7 +275,8 @@ mod tests {
         assert!(matches!(e, ResolveError::Unknown { .. }), "{e}");
     }
 
-    /// `topics.*` went (#36): an old params file is told the remap rule that replaces its name.
+    /// `topics.*` and `node.*_topic` went (#36): an old params file is told the remap rule that
+    /// replaces its name.
     #[test]
     fn an_old_topic_name_is_refused_with_its_remap_rule() {
         let tmp = tempfile::tempdir().unwrap();
@@ -256,9 +284,15 @@ mod tests {
         std::fs::write(&f, "angle_i2p:\n  ros__parameters:\n    topics:\n      correspondences: /my/matches\n")
             .unwrap();
         let e = resolve_cli::<&str>(Some(&f), &[]).unwrap_err();
-        assert!(e.to_string().contains("-r /matcher/correspondences:=/my/matches"), "{e}");
+        assert!(e.to_string().contains("-r matcher/correspondences:=/my/matches"), "{e}");
         let e = resolve_cli(None, &["topics.pose:=/p"]).unwrap_err();
-        assert!(e.to_string().contains("-r /angle_i2p/pose:=/p"), "{e}");
+        assert!(e.to_string().contains("-r angle_i2p/pose:=/p"), "{e}");
+        for old in ["node.tf_topic:=/robot/tf", "tf_topic:=/robot/tf"] {
+            let e = resolve_cli(None, &[old]).unwrap_err();
+            assert!(e.to_string().contains("`-r /tf:=/robot/tf`"), "{e}");
+        }
+        let e = resolve_cli(None, &["initialpose_topic:=pose0"]).unwrap_err();
+        assert!(e.to_string().contains("`-r initialpose:=pose0`"), "{e}");
         let e = resolve_cli(None, &["topics.posse:=/p"]).unwrap_err();
         assert!(matches!(e, ResolveError::Unknown { .. }), "{e}");
         // What replaces them: a command's remaps rename the topics it reads and writes.

@@ -28,7 +28,25 @@ pub struct TopicMap {
     pub pose_with_covariance: String,
     /// Output `angle_i2p_msgs/msg/Correspondences` (inliers, with inlier scores).
     pub output_correspondences: String,
+    /// `sensor_msgs/msg/Image` (rgb8, bgr8, mono8, rgba8, bgra8) beside the compressed image,
+    /// for the debug image.
+    pub image_raw: String,
+    /// Output `sensor_msgs/msg/Image` rgb8: kept matches green, rejected red (`node.debug_image`).
+    pub debug_image: String,
+    /// Output `geometry_msgs/msg/PoseStamped` of `node.base_frame` in the map.
+    pub base_pose: String,
+    /// `geometry_msgs/msg/PoseWithCovarianceStamped` of the camera: a gate on the poses.
+    pub initial_pose: String,
+    /// `diagnostic_msgs/msg/DiagnosticArray`, out.
+    pub diagnostics: String,
+    /// `tf2_msgs/msg/TFMessage`: odometry read, the localization broadcast.
+    pub tf: String,
+    /// `tf2_msgs/msg/TFMessage`, latched.
+    pub tf_static: String,
 }
+
+/// Names that stay absolute in the live node, as tf2 and diagnostic_updater have them.
+const GLOBAL: [&str; 3] = ["/diagnostics", "/tf", "/tf_static"];
 
 impl Default for TopicMap {
     fn default() -> Self {
@@ -43,6 +61,13 @@ impl Default for TopicMap {
             pose: "/angle_i2p/pose".into(),
             pose_with_covariance: "/angle_i2p/pose_with_covariance".into(),
             output_correspondences: "/angle_i2p/correspondences".into(),
+            image_raw: "/camera/image_raw".into(),
+            debug_image: "/angle_i2p/debug_image".into(),
+            base_pose: "/angle_i2p/base_pose".into(),
+            initial_pose: "/initialpose".into(),
+            diagnostics: "/diagnostics".into(),
+            tf: "/tf".into(),
+            tf_static: "/tf_static".into(),
         }
     }
 }
@@ -61,6 +86,13 @@ impl TopicMap {
             pose: rename(&self.pose),
             pose_with_covariance: rename(&self.pose_with_covariance),
             output_correspondences: rename(&self.output_correspondences),
+            image_raw: rename(&self.image_raw),
+            debug_image: rename(&self.debug_image),
+            base_pose: rename(&self.base_pose),
+            initial_pose: rename(&self.initial_pose),
+            diagnostics: rename(&self.diagnostics),
+            tf: rename(&self.tf),
+            tf_static: rename(&self.tf_static),
         }
     }
 
@@ -71,15 +103,29 @@ impl TopicMap {
     }
 
     /// The default names made relative (`camera/camera_info`), as the live node has them: they
-    /// move with its namespace (`-r __ns:=/cam0`) before its remaps apply.
+    /// move with its namespace (`-r __ns:=/cam0`) before its remaps apply. `/diagnostics`,
+    /// `/tf` and `/tf_static` stay absolute, as tf2 and diagnostic_updater have them.
     pub fn relative() -> Self {
-        Self::default().map_names(|name| name.trim_start_matches('/').to_string())
+        Self::default().map_names(|name| {
+            if GLOBAL.contains(&name) {
+                name.to_string()
+            } else {
+                name.trim_start_matches('/').to_string()
+            }
+        })
     }
 
-    /// The remap rule that gives the topic of `key` (a field's name, as `topics.KEY` was) the
-    /// name `to`; `None` for a key that names no topic.
+    /// The remap rule that gives the topic of `key` (a field's name) the name `to`; `None` for
+    /// a key that names no topic.
     pub fn remap_rule(&self, key: &str, to: &str) -> Option<String> {
         let from = match key {
+            "image_raw" => &self.image_raw,
+            "debug_image" => &self.debug_image,
+            "base_pose" => &self.base_pose,
+            "initial_pose" => &self.initial_pose,
+            "diagnostics" => &self.diagnostics,
+            "tf" => &self.tf,
+            "tf_static" => &self.tf_static,
             "map" => &self.map,
             "camera_info" => &self.camera_info,
             "image" => &self.image,
@@ -109,7 +155,12 @@ mod tests {
         assert_eq!((t.correspondences.as_str(), t.pose.as_str()), ("/m", "/p"), "absolute and relative rules");
         assert_eq!(t.map, "/map/points");
         assert_eq!(TopicMap::remapped(&Names::new("angle_i2p", &RosArgs::default())), TopicMap::default());
-        assert_eq!(TopicMap::relative().camera_info, "camera/camera_info");
+        let relative = TopicMap::relative();
+        assert_eq!(
+            (relative.camera_info.as_str(), relative.initial_pose.as_str()),
+            ("camera/camera_info", "initialpose")
+        );
+        assert_eq!((relative.tf.as_str(), relative.diagnostics.as_str()), ("/tf", "/diagnostics"));
         assert_eq!(t.remap_rule("pose", "/x").as_deref(), Some("/p:=/x"));
         assert_eq!(TopicMap::default().remap_rule("image", "/i").as_deref(), Some("/camera/image_raw/compressed:=/i"));
         assert_eq!(t.remap_rule("nope", "/x"), None);
