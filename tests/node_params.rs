@@ -169,7 +169,7 @@ fn inner_ros_parameters_rosout_and_clock() {
         "pnp.min_inliers",
         "node.queue_depth",
         "node.tf_mode",
-        "node.tf_topic",
+        "node.odom_frame",
         "limits.max_map_points",
         "use_sim_time",
     ] {
