@@ -13,6 +13,7 @@ use ros2_client::{Node, Publisher, QosProfile};
 use crate::bag::{BagMessage, BagReader};
 use crate::msgs::{self, from_cdr, RosMessage};
 use crate::node::dds;
+use crate::node::security::SecurityEnv;
 use crate::params::{Names, RosArgs};
 
 #[derive(clap::Args, Clone, Debug)]
@@ -40,6 +41,10 @@ pub struct PlayArgs {
     /// Keep the publishers this long after the last message (reliable repairs, latched map).
     #[arg(long, default_value_t = 1.0)]
     pub linger: f64,
+    /// SROS2 enclave of the player (as `--ros-args -e`; `ROS_SECURITY_ENCLAVE_OVERRIDE` wins),
+    /// used when `ROS_SECURITY_ENABLE=true` (docs/ros2.md).
+    #[arg(long)]
+    pub enclave: Option<String>,
 }
 
 /// What a play did.
@@ -139,7 +144,11 @@ pub fn play(args: &PlayArgs) -> Result<PlayReport> {
     let reader = BagReader::open(&args.bag)?;
     let names = Names::new("angle_i2p_player", &RosArgs::parse(&remap_args(&args.remaps))?);
 
-    let context = dds::context()?;
+    let security = SecurityEnv::from_process(args.enclave.as_deref()).plan()?;
+    if let Some(line) = security.describe() {
+        eprintln!("[angle_i2p_player] {line}");
+    }
+    let context = dds::context_for(&security)?;
     let mut node = dds::node(&context, "/", &format!("angle_i2p_player_{}", std::process::id()))?;
     let _spinner = dds::spawn_spinner(&mut node)?;
 

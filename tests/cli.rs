@@ -352,7 +352,7 @@ fn a_skipped_check_is_recorded_for_the_summary() {
 /// too where it cannot secure the node) instead of running unsecured; it stops at once, before
 /// any DDS participant exists, naming the variables.
 #[test]
-fn node_refuses_enforced_security_it_cannot_apply() {
+fn node_refuses_enforced_security_without_its_enclave() {
     let mut node = Command::new(binary())
         .args(["node", "--ros-args", "--enclave", "/angle_i2p"])
         .env("ROS_SECURITY_ENABLE", "true")

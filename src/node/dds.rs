@@ -11,6 +11,7 @@ use anyhow::{anyhow, Context as _, Result};
 use ros2_client::qos::{Durability, History, Reliability, WhenFull};
 use ros2_client::{Context, ContextOptions, MessageTypeName, Name, Node, NodeName, NodeOptions, QosProfile};
 
+use super::security::SecurityPlan;
 use crate::msgs::RosMessage;
 
 /// The DDS domain from `ROS_DOMAIN_ID` (0 when unset; an invalid value is an error).
@@ -26,11 +27,25 @@ pub fn domain_id_from_env() -> Result<u16> {
     }
 }
 
-/// A ROS 2 context on `ROS_DOMAIN_ID`.
+/// An unsecured ROS 2 context on `ROS_DOMAIN_ID`.
 pub fn context() -> Result<Context> {
+    context_for(&SecurityPlan::Off { enclave: None })
+}
+
+/// A ROS 2 context on `ROS_DOMAIN_ID`, secured as `plan` says (SROS2: the enclave's identity,
+/// permissions and governance; unencrypted keys, as SROS2 writes them).
+pub fn context_for(plan: &SecurityPlan) -> Result<Context> {
     let domain = domain_id_from_env()?;
-    Context::with_options(ContextOptions::new().domain_id(domain))
-        .map_err(|e| anyhow!("cannot create the DDS participant on domain {domain}: {e:?}"))
+    let mut options = ContextOptions::new().domain_id(domain);
+    if let SecurityPlan::Secured { dir, .. } = plan {
+        options = options.enable_security(dir, String::new());
+    }
+    Context::with_options(options).map_err(|e| match plan {
+        SecurityPlan::Secured { enclave, dir } => {
+            anyhow!("cannot create the secured DDS participant (enclave {enclave:?}, {}): {e:?}", dir.display())
+        }
+        _ => anyhow!("cannot create the DDS participant on domain {domain}: {e:?}"),
+    })
 }
 
 /// A node `namespace/name` without parameter services or rosout (nothing to serve).

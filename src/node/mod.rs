@@ -92,15 +92,9 @@ pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     if let Some(level) = args.log_level {
         log::set_log_level(level);
     }
-    match security::SecurityEnv::from_process(args.enclave.as_deref()).plan()? {
-        security::SecurityPlan::Off { enclave: Some(enclave) } => {
-            eprintln!("[angle_i2p] enclave {enclave:?} noted; security is off (ROS_SECURITY_ENABLE is not true)");
-        }
-        security::SecurityPlan::Off { enclave: None } => {}
-        security::SecurityPlan::Unsecured { enclave } => eprintln!(
-            "[angle_i2p] WARN ROS_SECURITY_ENABLE=true in Permissive mode: DDS security is not built in, the node \
-             runs UNSECURED (enclave {enclave:?})"
-        ),
+    let security = security::SecurityEnv::from_process(args.enclave.as_deref()).plan()?;
+    if let Some(line) = security.describe() {
+        eprintln!("[angle_i2p] {line}");
     }
     let rosout = args.rosout.unwrap_or(true);
     for flag in &args.ignored {
@@ -108,5 +102,5 @@ pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     }
     let runtime =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().thread_name("angle_i2p").build()?;
-    runtime.block_on(run_node(names, resolved, config.record, rosout))
+    runtime.block_on(run_node(names, resolved, config.record, rosout, &security))
 }

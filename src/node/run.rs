@@ -18,6 +18,7 @@ use super::log::{self, info, warn};
 use super::managed::Managed;
 use super::recorder::Recorder;
 use super::ros_params::{self, LiveParams, LiveTargets};
+use super::security::SecurityPlan;
 use super::setup::Setup;
 use crate::params::{AppParams, Names};
 
@@ -44,8 +45,15 @@ fn node_options(resolved: &AppParams, live: &LiveParams, rosout: bool) -> Result
 }
 
 /// Runs the node until SIGINT/SIGTERM or a lifecycle shutdown; `record` also writes every
-/// published message to a bag; `rosout`: log lines also go to `/rosout`.
-pub async fn run_node(names: Names, resolved: AppParams, record: Option<PathBuf>, rosout: bool) -> Result<()> {
+/// published message to a bag; `rosout`: log lines also go to `/rosout`; its DDS participant is
+/// secured as `security` says.
+pub async fn run_node(
+    names: Names,
+    resolved: AppParams,
+    record: Option<PathBuf>,
+    rosout: bool,
+    security: &SecurityPlan,
+) -> Result<()> {
     // 1. Parameters.
     let s = Setup::new(names, &resolved, record.as_deref())?;
     let live = LiveParams::new(
@@ -59,7 +67,7 @@ pub async fn run_node(names: Names, resolved: AppParams, record: Option<PathBuf>
     );
     // 2. The ROS node: parameter services, rosout, `/clock` (`use_sim_time` may be switched on
     // in any state).
-    let context = dds::context()?;
+    let context = dds::context_for(security)?;
     let options = node_options(&resolved, &live, rosout)?;
     let mut node = dds::node_with_options(&context, &s.names.namespace, &s.names.node_name, options)?;
     if rosout {

@@ -1,27 +1,36 @@
-//! SROS2's environment, read as rcl reads it (`ROS_SECURITY_ENABLE`, `ROS_SECURITY_STRATEGY`,
-//! `ROS_SECURITY_KEYSTORE`, `--enclave`). DDS security is not built into this node yet (#37):
-//! where rcl would run secured or refuse to start, this node must not run unsecured while the
-//! operator believes otherwise. Enforce mode therefore refuses to start, with the reason;
-//! Permissive mode, as rcl's with no usable keystore, runs unsecured and says so.
+//! SROS2, read as rcl reads it (`ROS_SECURITY_ENABLE`, `ROS_SECURITY_STRATEGY`,
+//! `ROS_SECURITY_KEYSTORE`, `ROS_SECURITY_ENCLAVE_OVERRIDE`, `--enclave`): with security on, the
+//! enclave's files in an SROS2 keystore (`<keystore>/enclaves/<enclave>/`, as `ros2 security
+//! create_enclave` or `scripts/make_test_keystore.sh` lays them out) secure the DDS participant
+//! (authentication, access control and encryption: RustDDS's built-in plugins). Enforce mode
+//! refuses to start without them, with the reason; Permissive mode runs unsecured and says so,
+//! as rcl does.
 
-/// What the security environment asks of the node.
+use std::path::{Path, PathBuf};
+
+/// The files of an enclave, as SROS2 names them (and RustDDS reads them).
+pub const ENCLAVE_FILES: [&str; 6] =
+    ["cert.pem", "key.pem", "governance.p7s", "permissions.p7s", "identity_ca.cert.pem", "permissions_ca.cert.pem"];
+
+/// What the security environment asks of a participant.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum SecurityPlan {
     /// Security is off (`ROS_SECURITY_ENABLE` is not `true`); an `--enclave` is noted only.
     Off { enclave: Option<String> },
-    /// Security is on in Permissive mode: the node runs unsecured and warns.
-    Unsecured { enclave: Option<String> },
+    /// Security is on in Permissive mode without a usable enclave: unsecured, and said why.
+    Unsecured { enclave: String, why: String },
+    /// Secured with the enclave's files in `dir`.
+    Secured { enclave: String, dir: PathBuf },
 }
 
-/// Why the node may not start under the security environment.
+/// Why a participant may not start under the security environment.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum SecurityError {
     #[error(
-        "ROS_SECURITY_ENABLE=true with ROS_SECURITY_STRATEGY=Enforce (keystore {keystore:?}, enclave {enclave:?}): \
-         DDS security (SROS2) is not built into this node, which would run unsecured; refusing to start \
-         (use ROS_SECURITY_STRATEGY=Permissive to run it unsecured knowingly)"
+        "ROS_SECURITY_ENABLE=true with ROS_SECURITY_STRATEGY=Enforce, but enclave {enclave:?} is unusable: {why}; \
+         refusing to start unsecured (ROS_SECURITY_STRATEGY=Permissive runs unsecured knowingly)"
     )]
-    EnforceUnsupported { keystore: Option<String>, enclave: Option<String> },
+    Enforced { enclave: String, why: String },
 }
 
 /// The security environment: the variables' values (`None`: unset) and `--enclave`.
@@ -50,16 +59,49 @@ impl SecurityEnv {
 
     /// What to do: rcl enables security only for `ROS_SECURITY_ENABLE=true` (exactly), and
     /// enforces only for `ROS_SECURITY_STRATEGY=Enforce` (exactly; anything else is Permissive).
-    /// The enclave is the override when set, else `--enclave`.
+    /// The enclave is the override when set, else `--enclave`, else `/`.
     pub fn plan(&self) -> Result<SecurityPlan, SecurityError> {
-        let enclave = self.enclave_override.clone().or_else(|| self.enclave_arg.clone());
+        let named = self.enclave_override.clone().or_else(|| self.enclave_arg.clone());
         if self.enable.as_deref() != Some("true") {
-            return Ok(SecurityPlan::Off { enclave });
+            return Ok(SecurityPlan::Off { enclave: named });
         }
-        if self.strategy.as_deref() == Some("Enforce") {
-            return Err(SecurityError::EnforceUnsupported { keystore: self.keystore.clone(), enclave });
+        let enclave = named.unwrap_or_else(|| "/".into());
+        match self.enclave_dir(&enclave) {
+            Ok(dir) => Ok(SecurityPlan::Secured { enclave, dir }),
+            Err(why) if self.strategy.as_deref() == Some("Enforce") => Err(SecurityError::Enforced { enclave, why }),
+            Err(why) => Ok(SecurityPlan::Unsecured { enclave, why }),
         }
-        Ok(SecurityPlan::Unsecured { enclave })
+    }
+
+    /// The enclave's directory in the keystore, holding every file of [`ENCLAVE_FILES`].
+    fn enclave_dir(&self, enclave: &str) -> Result<PathBuf, String> {
+        let keystore = self.keystore.as_deref().ok_or("ROS_SECURITY_KEYSTORE is not set")?;
+        let dir = Path::new(keystore).join("enclaves").join(enclave.trim_start_matches('/'));
+        let missing: Vec<&str> = ENCLAVE_FILES.into_iter().filter(|f| !dir.join(f).is_file()).collect();
+        match missing.is_empty() {
+            true => Ok(dir),
+            false => Err(format!("{} lacks {}", dir.display(), missing.join(", "))),
+        }
+    }
+}
+
+impl SecurityPlan {
+    /// The line a participant logs at start for this plan (none when security is off and no
+    /// enclave was named).
+    pub fn describe(&self) -> Option<String> {
+        match self {
+            SecurityPlan::Off { enclave: Some(enclave) } => {
+                Some(format!("enclave {enclave:?} noted; security is off (ROS_SECURITY_ENABLE is not true)"))
+            }
+            SecurityPlan::Off { enclave: None } => None,
+            SecurityPlan::Unsecured { enclave, why } => Some(format!(
+                "WARN ROS_SECURITY_ENABLE=true in Permissive mode, but enclave {enclave:?} is unusable ({why}): \
+                 running UNSECURED"
+            )),
+            SecurityPlan::Secured { enclave, dir } => {
+                Some(format!("secured (SROS2) as enclave {enclave:?} with {}", dir.display()))
+            }
+        }
     }
 }
 
@@ -67,36 +109,57 @@ impl SecurityEnv {
 mod tests {
     use super::*;
 
-    fn env(enable: Option<&str>, strategy: Option<&str>) -> SecurityEnv {
+    fn env(enable: Option<&str>, strategy: Option<&str>, keystore: &Path) -> SecurityEnv {
         SecurityEnv {
             enable: enable.map(str::to_string),
             strategy: strategy.map(str::to_string),
-            keystore: Some("/keys".into()),
+            keystore: Some(keystore.display().to_string()),
             enclave_override: None,
             enclave_arg: Some("/angle_i2p".into()),
         }
     }
 
     #[test]
-    fn enforce_refuses_to_start_and_says_why() {
-        let err = env(Some("true"), Some("Enforce")).plan().unwrap_err();
+    fn enforce_without_the_enclaves_files_refuses_to_start_and_says_why() {
+        let keys = tempfile::tempdir().unwrap();
+        let err = env(Some("true"), Some("Enforce"), keys.path()).plan().unwrap_err();
         let text = err.to_string();
-        assert!(text.contains("Enforce") && text.contains("/keys") && text.contains("/angle_i2p"), "{text}");
+        assert!(text.contains("Enforce") && text.contains("/angle_i2p") && text.contains("cert.pem"), "{text}");
+        let mut no_keystore = env(Some("true"), Some("Enforce"), keys.path());
+        no_keystore.keystore = None;
+        assert!(no_keystore.plan().unwrap_err().to_string().contains("ROS_SECURITY_KEYSTORE"));
+    }
+
+    #[test]
+    fn an_enclave_with_its_files_secures_the_participant() {
+        let keys = tempfile::tempdir().unwrap();
+        let dir = keys.path().join("enclaves/angle_i2p");
+        std::fs::create_dir_all(&dir).unwrap();
+        for f in ENCLAVE_FILES {
+            std::fs::write(dir.join(f), "x").unwrap();
+        }
+        let plan = env(Some("true"), Some("Enforce"), keys.path()).plan().unwrap();
+        assert_eq!(plan, SecurityPlan::Secured { enclave: "/angle_i2p".into(), dir: dir.clone() });
+        std::fs::remove_file(dir.join("permissions.p7s")).unwrap();
+        let SecurityPlan::Unsecured { why, .. } = env(Some("true"), None, keys.path()).plan().unwrap() else {
+            panic!("Permissive runs unsecured")
+        };
+        assert!(why.contains("permissions.p7s"), "{why}");
     }
 
     #[test]
     fn permissive_or_off_runs_as_rcl_reads_the_variables() {
+        let keys = tempfile::tempdir().unwrap();
         let enclave = Some("/angle_i2p".to_string());
-        assert_eq!(env(Some("true"), None).plan(), Ok(SecurityPlan::Unsecured { enclave: enclave.clone() }));
-        assert_eq!(
-            env(Some("true"), Some("Permissive")).plan(),
-            Ok(SecurityPlan::Unsecured { enclave: enclave.clone() })
-        );
+        let unsecured = |plan: SecurityPlan| matches!(plan, SecurityPlan::Unsecured { .. });
+        assert!(unsecured(env(Some("true"), None, keys.path()).plan().unwrap()));
+        assert!(unsecured(env(Some("true"), Some("Permissive"), keys.path()).plan().unwrap()));
         // rcl compares exactly: `TRUE` or `1` leave security off, `enforce` is Permissive.
-        assert_eq!(env(Some("TRUE"), Some("Enforce")).plan(), Ok(SecurityPlan::Off { enclave: enclave.clone() }));
-        assert_eq!(env(Some("true"), Some("enforce")).plan(), Ok(SecurityPlan::Unsecured { enclave: enclave.clone() }));
-        assert_eq!(env(None, Some("Enforce")).plan(), Ok(SecurityPlan::Off { enclave }));
-        let mut overridden = env(None, None);
+        let off = SecurityPlan::Off { enclave: enclave.clone() };
+        assert_eq!(env(Some("TRUE"), Some("Enforce"), keys.path()).plan(), Ok(off.clone()));
+        assert!(unsecured(env(Some("true"), Some("enforce"), keys.path()).plan().unwrap()));
+        assert_eq!(env(None, Some("Enforce"), keys.path()).plan(), Ok(off));
+        let mut overridden = env(None, None, keys.path());
         overridden.enclave_override = Some("/robot".into());
         assert_eq!(overridden.plan(), Ok(SecurityPlan::Off { enclave: Some("/robot".into()) }));
     }
