@@ -8,8 +8,9 @@
 use std::time::Duration;
 
 use anyhow::{anyhow, Context as _, Result};
+use ros2_client::dds::rustdds::{DomainParticipantBuilder, DomainParticipantSecurityConfigFiles};
 use ros2_client::qos::{Durability, History, Reliability, WhenFull};
-use ros2_client::{Context, ContextOptions, MessageTypeName, Name, Node, NodeName, NodeOptions, QosProfile};
+use ros2_client::{Context, MessageTypeName, Name, Node, NodeName, NodeOptions, QosProfile};
 
 use super::security::SecurityPlan;
 use crate::msgs::RosMessage;
@@ -32,20 +33,45 @@ pub fn context() -> Result<Context> {
     context_for(&SecurityPlan::Off { enclave: None })
 }
 
+/// Requested kernel receive buffer (`SO_RCVBUF`) of every DDS socket, bytes: a large sample
+/// (a map of millions of points) arrives as one burst of fragments, and what the buffer cannot
+/// hold is repaired slowly by RustDDS (a few fragments per round). The kernel clamps the
+/// request to `net.core.rmem_max` (docs/ros2.md, *Large maps*).
+pub const RECEIVE_BUFFER_BYTES: usize = 64 << 20;
+
+/// What to tell the user at start when the kernel caps the receive buffer below
+/// [`RECEIVE_BUFFER_BYTES`] (Linux's `net.core.rmem_max`); `None` when it does not, or cannot
+/// be read.
+pub fn receive_buffer_note() -> Option<String> {
+    let text = std::fs::read_to_string("/proc/sys/net/core/rmem_max").ok()?;
+    let max: usize = text.trim().parse().ok()?;
+    (max < RECEIVE_BUFFER_BYTES).then(|| {
+        format!(
+            "net.core.rmem_max is {} KiB: a map of over ~1 M points from a RustDDS publisher (angle-i2p play) may \
+             arrive late or not at all; raise it to {} MiB (sysctl -w net.core.rmem_max={RECEIVE_BUFFER_BYTES}), \
+             as the ROS 2 DDS tuning guide advises for large messages",
+            max >> 10,
+            RECEIVE_BUFFER_BYTES >> 20
+        )
+    })
+}
+
 /// A ROS 2 context on `ROS_DOMAIN_ID`, secured as `plan` says (SROS2: the enclave's identity,
 /// permissions and governance; unencrypted keys, as SROS2 writes them).
 pub fn context_for(plan: &SecurityPlan) -> Result<Context> {
     let domain = domain_id_from_env()?;
-    let mut options = ContextOptions::new().domain_id(domain);
+    let mut builder = DomainParticipantBuilder::new(domain).socket_receive_buffer_size(RECEIVE_BUFFER_BYTES);
     if let SecurityPlan::Secured { dir, .. } = plan {
-        options = options.enable_security(dir, String::new());
+        builder =
+            builder.builtin_security(DomainParticipantSecurityConfigFiles::with_ros_default_names(dir, String::new()));
     }
-    Context::with_options(options).map_err(|e| match plan {
+    let participant = builder.build().map_err(|e| match plan {
         SecurityPlan::Secured { enclave, dir } => {
             anyhow!("cannot create the secured DDS participant (enclave {enclave:?}, {}): {e:?}", dir.display())
         }
         _ => anyhow!("cannot create the DDS participant on domain {domain}: {e:?}"),
-    })
+    })?;
+    Context::from_domain_participant(participant).map_err(|e| anyhow!("cannot create the ROS 2 context: {e:?}"))
 }
 
 /// A node `namespace/name` without parameter services or rosout (nothing to serve).

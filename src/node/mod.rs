@@ -96,6 +96,9 @@ pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     if let Some(line) = security.describe() {
         eprintln!("[angle_i2p] {line}");
     }
+    if let Some(note) = resolved.node.map_source.takes_topic().then(dds::receive_buffer_note).flatten() {
+        eprintln!("[angle_i2p] note: {note}");
+    }
     let rosout = args.rosout.unwrap_or(true);
     for flag in &args.ignored {
         eprintln!("[angle_i2p] {flag}: accepted, no effect (the node logs to stderr only)");
