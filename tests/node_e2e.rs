@@ -23,25 +23,13 @@ use angle_i2p::node::diagnostics::status_value;
 use angle_i2p::params::LocalizerParams;
 use angle_i2p::pipeline::Localizer;
 use common::{binary, manifest, python, skip_or_fail};
-use netns::{mark_done, run_in_netns, wait_bounded};
+use netns::{mark_done, run_in_netns, wait_bounded, Guard};
 
 const DOMAIN: &str = "17";
 
 /// The start of an inner test: it must run inside the namespace `via` made, on the test domain.
 fn enter_netns(via: &str) {
     netns::enter_netns(via, DOMAIN);
-}
-
-/// Kills a child on drop (a failing assertion never leaves a node running).
-struct Guard(Child);
-
-impl Drop for Guard {
-    fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
 }
 
 fn interrupt(child: &mut Child) -> Option<std::process::ExitStatus> {

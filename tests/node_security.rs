@@ -4,7 +4,7 @@
 //! unauthenticated reader receives no pose. Inside a private network namespace.
 
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
@@ -15,23 +15,11 @@ use angle_i2p::msgs;
 use angle_i2p::node::dds;
 use angle_i2p::node::security::SecurityPlan;
 use common::{binary, manifest, skip_or_fail};
-use netns::{mark_done, run_in_netns, wait_bounded};
+use netns::{mark_done, run_in_netns, wait_bounded, Guard};
 
 const DOMAIN: &str = "23";
 /// Of the shipped bag's 20 frames played, at least this many reach the secured reader as poses.
 const MIN_POSES: usize = 18;
-
-/// Kills a child on drop (a failing assertion never leaves a node running).
-struct Guard(Child);
-
-impl Drop for Guard {
-    fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-}
 
 #[test]
 fn live_sros2_node_serves_only_authenticated_participants() {
