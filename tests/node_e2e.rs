@@ -230,6 +230,9 @@ fn inner_live_pose_matches_replay() {
     let status = interrupt(&mut node.0).expect("node did not stop on SIGINT");
     let log = node_log(tmp.path());
     assert!(status.success(), "node exit {status}\n{log}");
+    // Who sent the map is logged with it (#37): the player's DDS GUID.
+    let map_line = log.lines().find(|l| l.contains("map received:")).unwrap_or_default();
+    assert!(map_line.contains("from publisher ") && map_line.len() > 60, "{map_line}\n{log}");
     assert_eq!(got.len(), posed, "poses received over Cyclone DDS: {} of {posed}\nnode log:\n{log}", got.len());
     for (stamp, want) in &expected {
         match (want, got.get(stamp)) {

@@ -190,7 +190,7 @@ impl Cameras {
     /// every camera's status.
     pub fn on_input(&mut self, routed: Routed, now: MonotonicNs) {
         match (routed.camera, routed.input) {
-            (_, Input::Map(map)) => self.map.on_map(map, self.runs.iter_mut().map(|r| &mut r.ingest)),
+            (_, Input::Map(map, sender)) => self.map.on_map(map, sender, self.runs.iter_mut().map(|r| &mut r.ingest)),
             (Some(camera), input) => match self.runs.get_mut(camera) {
                 Some(run) => run.ingest.on_input(input, now),
                 None => warn(format!("an input for camera #{camera}, which this node does not have")),

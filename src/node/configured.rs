@@ -18,7 +18,7 @@ use tokio::sync::mpsc;
 
 use super::cameras::{self, Cameras, InputRules, WorkerContext};
 use super::dds;
-use super::ingest::{IngestRules, Input, Routed};
+use super::ingest::{IngestRules, Input, MapSender, Routed};
 use super::lifecycle::Activity;
 use super::log::{info, lock, now_ns, warn};
 use super::map_file;
@@ -80,7 +80,7 @@ impl Configured {
         let mut cameras = Cameras::start(node, &s.cameras, &cx)?;
         // 4. The map, indexed for every camera.
         if let Some(map) = map {
-            cameras.on_input(Routed { camera: None, input: Input::Map(Ok(map)) }, 0);
+            cameras.on_input(Routed { camera: None, input: Input::Map(Ok(map), MapSender::File) }, 0);
         }
         Ok(Self { rx, readers, cameras, diagnostics, resend, origin: Instant::now() })
     }

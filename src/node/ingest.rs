@@ -25,18 +25,27 @@ pub enum Input {
         stamp: Stamp,
         reason: String,
     },
-    /// A map, with what the limits changed in it.
-    Map(Result<DecodedMap, String>),
+    /// A map, with what the limits changed in it, and who sent it.
+    Map(Result<DecodedMap, String>, MapSender),
     /// The DDS sample could not be deserialized (no header to attribute it to).
     ReadError {
         topic: String,
         reason: String,
     },
-    /// A message outside frames (e.g. a transform) was unusable: counted under `reason`.
+    /// A message outside frames (e.g. a transform) was unusable, or is worth counting (an
+    /// initial pose from another publisher): counted under `reason`.
     Invalid {
         reason: &'static str,
         detail: String,
     },
+}
+
+/// Where a map came from: the node's file (`map_path`, `~/load_map`) or a publisher on the map
+/// topic (its DDS GUID, as `ros2 topic info -v` shows it).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum MapSender {
+    File,
+    Publisher(String),
 }
 
 /// An input and the camera it is for: the index into the node's cameras, `None` for the
@@ -139,8 +148,8 @@ impl Ingest {
                 let done = self.assembler.push_error(stamp, kind, format!("{reason} (counted)"), now);
                 self.handle(done);
             }
-            Input::Map(Ok(DecodedMap { map, notes })) => self.set_map(Arc::new(map), &notes),
-            Input::Map(Err(reason)) => {
+            Input::Map(Ok(DecodedMap { map, notes }), _) => self.set_map(Arc::new(map), &notes),
+            Input::Map(Err(reason), _) => {
                 warn(format!("bad map (kept the previous one): {reason}"));
                 self.count_error("invalid_map", format!("map: {reason}"));
             }

@@ -64,7 +64,7 @@ fn no_map_timeouts_queue_drops_and_bad_parts_are_counted() {
     }
     assert_eq!(lock(&i.stats).drop_count("no_map"), 2);
     let map = MapCloud { frame_id: "map".into(), points: vec![] };
-    i.on_input(Input::Map(Ok(DecodedMap { map, notes: vec!["no usable point".into()] })), 0);
+    i.on_input(Input::Map(Ok(DecodedMap { map, notes: vec!["no usable point".into()] }), MapSender::File), 0);
     for s in [3, 4, 5] {
         frame(&mut i, s, 0);
     }

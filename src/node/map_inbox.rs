@@ -2,11 +2,12 @@
 //! taken once, indexed once on the shared [`MapSwap`], and handed to every camera's ingest (one
 //! `Arc`, no copy per camera). A map is checked before it replaces the one held: an unusable
 //! one (no point, most points beyond any plausible place, all of it in a speck) is refused and
-//! counted, and the node goes on with the map it had (#38).
+//! counted, and the node goes on with the map it had (#38). Who sent each map is logged; a map
+//! from another publisher than the held map's is counted (`map_publisher_changed`, #37).
 
 use std::sync::Arc;
 
-use super::ingest::Ingest;
+use super::ingest::{Ingest, MapSender};
 use super::log::{info, warn};
 use crate::frame::MapCloud;
 use crate::map_index::swap::MapSwap;
@@ -16,17 +17,24 @@ use crate::msgs::convert::DecodedMap;
 /// The map the node localizes against, and the index every worker shares.
 pub struct MapInbox {
     current: Option<Arc<MapCloud>>,
+    /// Who sent `current`.
+    sender: Option<MapSender>,
     swap: Arc<MapSwap>,
     settings: IndexSettings,
 }
 
 impl MapInbox {
     pub fn new(swap: Arc<MapSwap>, settings: IndexSettings) -> Self {
-        Self { current: None, swap, settings }
+        Self { current: None, sender: None, swap, settings }
     }
 
-    /// A map (or why one was unusable) for every camera in `cameras`.
-    pub fn on_map<'a>(&mut self, map: Result<DecodedMap, String>, cameras: impl Iterator<Item = &'a mut Ingest>) {
+    /// A map (or why one was unusable) from `sender`, for every camera in `cameras`.
+    pub fn on_map<'a>(
+        &mut self,
+        map: Result<DecodedMap, String>,
+        sender: MapSender,
+        cameras: impl Iterator<Item = &'a mut Ingest>,
+    ) {
         let DecodedMap { map, notes } = match map {
             Ok(decoded) => decoded,
             Err(reason) => {
@@ -44,7 +52,19 @@ impl MapInbox {
             // `map_qos: auto` reads the map twice from a latched publisher.
             return;
         }
-        info(format!("map received: {} points in frame {:?}", map.points.len(), map.frame_id));
+        let from = match &sender {
+            MapSender::File => "the map file".to_string(),
+            MapSender::Publisher(gid) => format!("publisher {gid}"),
+        };
+        info(format!("map received: {} points in frame {:?} from {from}", map.points.len(), map.frame_id));
+        let cameras: Vec<&mut Ingest> = cameras.collect();
+        if let (Some(MapSender::Publisher(before)), MapSender::Publisher(now)) = (&self.sender, &sender) {
+            if before != now {
+                let detail = format!("a map from publisher {now} replaces the one from {before}");
+                warn(detail.clone());
+                cameras.iter().for_each(|c| c.count_error("map_publisher_changed", detail.clone()));
+            }
+        }
         for note in &notes {
             warn(format!("map: {note}"));
         }
@@ -56,6 +76,7 @@ impl MapInbox {
             camera.set_map(Arc::clone(&map), &notes);
         }
         self.current = Some(map);
+        self.sender = Some(sender);
     }
 }
 
@@ -140,12 +161,42 @@ mod tests {
         let swap = Arc::new(MapSwap::default());
         let mut inbox = MapInbox::new(Arc::clone(&swap), IndexSettings::default());
         let decoded = |points| Ok(DecodedMap { map: cloud(points), notes: Vec::new() });
-        inbox.on_map(decoded(room(300)), std::iter::empty());
+        inbox.on_map(decoded(room(300)), MapSender::File, std::iter::empty());
         assert_eq!(inbox.current.as_ref().map(|m| m.points.len()), Some(300));
-        inbox.on_map(decoded(vec![]), std::iter::empty());
-        inbox.on_map(decoded(vec![Point3::new(f32::MAX, f32::MAX, 1.0); 50]), std::iter::empty());
+        inbox.on_map(decoded(vec![]), MapSender::File, std::iter::empty());
+        let far = vec![Point3::new(f32::MAX, f32::MAX, 1.0); 50];
+        inbox.on_map(decoded(far), MapSender::File, std::iter::empty());
         assert_eq!(inbox.current.as_ref().map(|m| m.points.len()), Some(300), "the good map stays");
-        inbox.on_map(decoded(room(400)), std::iter::empty());
+        inbox.on_map(decoded(room(400)), MapSender::File, std::iter::empty());
         assert_eq!(inbox.current.as_ref().map(|m| m.points.len()), Some(400), "a good map replaces it");
+    }
+
+    /// A map from another publisher than the held map's is counted (#37); the file's, the
+    /// first publisher's and the same publisher's again are not.
+    #[test]
+    fn a_map_from_another_publisher_is_counted() {
+        use crate::node::diagnostics::Stats;
+        use crate::node::ingest::{Ingest, IngestRules};
+        use crate::node::queue::DropOldestQueue;
+        let rules = IngestRules {
+            expected: Vec::new(),
+            stamp_tolerance_ns: 0,
+            frame_timeout: std::time::Duration::from_millis(100),
+            require_map: true,
+            limits: Default::default(),
+            pixels: Default::default(),
+        };
+        let stats = Arc::new(std::sync::Mutex::new(Stats::default()));
+        let mut camera = Ingest::new(rules, Arc::new(DropOldestQueue::new(2)), Arc::clone(&stats));
+        let mut inbox = MapInbox::new(Arc::new(MapSwap::default()), IndexSettings::default());
+        let publisher = |gid: &str| MapSender::Publisher(gid.into());
+        for (points, sender) in
+            [(300, MapSender::File), (310, publisher("a")), (320, publisher("a")), (330, publisher("b"))]
+        {
+            let decoded = Ok(DecodedMap { map: cloud(room(points)), notes: Vec::new() });
+            inbox.on_map(decoded, sender, std::iter::once(&mut camera));
+        }
+        assert_eq!(inbox.current.as_ref().map(|m| m.points.len()), Some(330), "the map is taken");
+        assert_eq!(stats.lock().unwrap().error_count("map_publisher_changed"), 1);
     }
 }

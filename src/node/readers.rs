@@ -15,7 +15,7 @@ use tokio::sync::mpsc;
 
 use super::dds;
 use super::image as img;
-use super::ingest::{Input, Routed};
+use super::ingest::{Input, MapSender, Routed};
 use super::initial_pose::{gate_from_msg, GateWidth, InitialPose};
 use super::log::{info, lock};
 use super::services;
@@ -26,14 +26,14 @@ use crate::msgs::{self, convert, RosMessage};
 use crate::params::{MapQos, Names, NodeParams};
 use crate::tf_buffer::TfHistory;
 
-/// Spawns a reader thread that drains `sub`, converting each message with `convert` (`None`:
-/// nothing for the ingest task). (ros2-client's sample streams are not `Send`, so each reader
+/// Spawns a reader thread that drains `sub`, converting each message and its publisher's GUID
+/// with `convert` (`None`: nothing for the ingest task). (ros2-client's sample streams are not `Send`, so each reader
 /// gets its own small thread; it only decodes and converts, and ends as soon as the ingest side
 /// is gone — a lifecycle cleanup — dropping its subscription.)
 fn spawn_reader<M, F>(sub: Subscription<M>, topic: String, to: Route, convert: F) -> Result<JoinHandle<()>>
 where
     M: RosMessage + Send + 'static,
-    F: Fn(M) -> Option<Input> + Send + 'static,
+    F: Fn(M, String) -> Option<Input> + Send + 'static,
 {
     std::thread::Builder::new()
         .name(format!("reader {topic}"))
@@ -49,7 +49,7 @@ where
                         Either::Left((None, _)) | Either::Right(_) => break,
                     };
                     let input = match r {
-                        Ok((msg, _info)) => convert(msg),
+                        Ok((msg, info)) => convert(msg, format!("{:?}", info.publisher_gid())),
                         Err(e) => Some(Input::ReadError { topic: topic.clone(), reason: format!("{e:?}") }),
                     };
                     let Some(input) = input else { continue };
@@ -75,6 +75,15 @@ fn read<M, F>(readers: &mut Readers, topic: &str, qos: &ros2_client::QosProfile,
 where
     M: RosMessage + Send + 'static,
     F: Fn(M) -> Option<Input> + Send + 'static,
+{
+    read_with_sender(readers, topic, qos, move |m, _| convert(m))
+}
+
+/// [`read`], its converter also given who published each message (the DDS GUID).
+fn read_with_sender<M, F>(readers: &mut Readers, topic: &str, qos: &ros2_client::QosProfile, convert: F) -> Result<()>
+where
+    M: RosMessage + Send + 'static,
+    F: Fn(M, String) -> Option<Input> + Send + 'static,
 {
     let sub = dds::subscription::<M>(readers.node, topic, qos)?;
     let to = Route { tx: readers.tx.clone(), camera: readers.camera };
@@ -194,8 +203,8 @@ fn map_qos_profiles(map_qos: MapQos) -> Vec<ros2_client::QosProfile> {
 pub fn subscribe_map(r: &mut Readers, topics: &Topics, map_qos: MapQos, limits: &InputLimits) -> Result<()> {
     for qos in map_qos_profiles(map_qos) {
         let limits = limits.clone();
-        read(r, &topics.map, &qos, move |m: msgs::PointCloud2| {
-            Some(Input::Map(convert::map_part(&m, &limits).map_err(|e| e.to_string())))
+        read_with_sender(r, &topics.map, &qos, move |m: msgs::PointCloud2, sender| {
+            Some(Input::Map(convert::map_part(&m, &limits).map_err(|e| e.to_string()), MapSender::Publisher(sender)))
         })?;
     }
     Ok(())
@@ -231,7 +240,9 @@ pub fn subscribe_tf(r: &mut Readers, topics: &Topics, buffer: &Arc<Mutex<TfHisto
     Ok(())
 }
 
-/// `initialpose`: sets the gate that poses must fall in (nav2 amcl's topic).
+/// `initialpose`: sets the gate that poses must fall in (nav2 amcl's topic). Who sent it is
+/// logged; one from another publisher than the last one's is counted
+/// (`initialpose_publisher_changed`), so a second source of initial poses shows.
 pub fn subscribe_initial_pose(
     r: &mut Readers,
     topics: &Topics,
@@ -239,13 +250,22 @@ pub fn subscribe_initial_pose(
     gate: &Arc<Mutex<Option<InitialPose>>>,
 ) -> Result<()> {
     let (gate, width) = (gate.clone(), width.clone());
-    read(r, &topics.initial_pose, &dds::reliable(10), move |m: msgs::PoseWithCovarianceStamped| {
+    let last_sender: Mutex<Option<String>> = Mutex::new(None);
+    read_with_sender(r, &topics.initial_pose, &dds::reliable(10), move |m: msgs::PoseWithCovarianceStamped, sender| {
         match gate_from_msg(&m, None, *lock(&width)) {
             Ok(g) => {
-                info(format!("initial pose: gate {:.2} m / {:.1}°", g.radius_m, g.max_angle_rad.to_degrees()));
+                info(format!(
+                    "initial pose from publisher {sender}: gate {:.2} m / {:.1}°",
+                    g.radius_m,
+                    g.max_angle_rad.to_degrees()
+                ));
                 let frame_id = m.header.frame_id.trim_start_matches('/').to_owned();
                 *lock(&gate) = Some(InitialPose { frame_id, gate: g });
-                None
+                let previous = lock(&last_sender).replace(sender.clone());
+                previous.filter(|p| *p != sender).map(|p| Input::Invalid {
+                    reason: "initialpose_publisher_changed",
+                    detail: format!("an initial pose from publisher {sender}, the last one's was {p}"),
+                })
             }
             Err(e) => Some(Input::Invalid { reason: "invalid_initialpose", detail: e.to_string() }),
         }
@@ -258,7 +278,7 @@ pub fn spawn_load_map(r: &mut Readers, names: &Names, np: &NodeParams) -> Result
     let load_map = move || {
         let (response, map) = services::load_map_answer(&map_path, &map_frame_id);
         if let Some(map) = map {
-            let input = Input::Map(Ok(convert::DecodedMap { map, notes: Vec::new() }));
+            let input = Input::Map(Ok(convert::DecodedMap { map, notes: Vec::new() }), MapSender::File);
             // The node is shutting down when the ingest side is gone.
             let _ = load_map_tx.blocking_send(Routed { camera: None, input });
         }
