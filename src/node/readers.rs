@@ -10,6 +10,7 @@ use std::thread::JoinHandle;
 use anyhow::{Context as _, Result};
 use futures::future::Either;
 use futures::StreamExt;
+use ros2_client::gid::Gid;
 use ros2_client::{Node, Subscription};
 use tokio::sync::mpsc;
 
@@ -27,13 +28,13 @@ use crate::params::{MapQos, Names, NodeParams};
 use crate::tf_buffer::TfHistory;
 
 /// Spawns a reader thread that drains `sub`, converting each message and its publisher's GUID
-/// with `convert` (`None`: nothing for the ingest task). (ros2-client's sample streams are not `Send`, so each reader
-/// gets its own small thread; it only decodes and converts, and ends as soon as the ingest side
+/// with `convert` (`None`: nothing for the ingest task). (ros2-client's sample streams are not
+/// `Send`, so each reader gets its own small thread; it only decodes and converts, and ends as soon as the ingest side
 /// is gone — a lifecycle cleanup — dropping its subscription.)
 fn spawn_reader<M, F>(sub: Subscription<M>, topic: String, to: Route, convert: F) -> Result<JoinHandle<()>>
 where
     M: RosMessage + Send + 'static,
-    F: Fn(M, String) -> Option<Input> + Send + 'static,
+    F: Fn(M, Gid) -> Option<Input> + Send + 'static,
 {
     std::thread::Builder::new()
         .name(format!("reader {topic}"))
@@ -49,7 +50,7 @@ where
                         Either::Left((None, _)) | Either::Right(_) => break,
                     };
                     let input = match r {
-                        Ok((msg, info)) => convert(msg, format!("{:?}", info.publisher_gid())),
+                        Ok((msg, info)) => convert(msg, info.publisher_gid()),
                         Err(e) => Some(Input::ReadError { topic: topic.clone(), reason: format!("{e:?}") }),
                     };
                     let Some(input) = input else { continue };
@@ -83,7 +84,7 @@ where
 fn read_with_sender<M, F>(readers: &mut Readers, topic: &str, qos: &ros2_client::QosProfile, convert: F) -> Result<()>
 where
     M: RosMessage + Send + 'static,
-    F: Fn(M, String) -> Option<Input> + Send + 'static,
+    F: Fn(M, Gid) -> Option<Input> + Send + 'static,
 {
     let sub = dds::subscription::<M>(readers.node, topic, qos)?;
     let to = Route { tx: readers.tx.clone(), camera: readers.camera };
@@ -204,7 +205,10 @@ pub fn subscribe_map(r: &mut Readers, topics: &Topics, map_qos: MapQos, limits: 
     for qos in map_qos_profiles(map_qos) {
         let limits = limits.clone();
         read_with_sender(r, &topics.map, &qos, move |m: msgs::PointCloud2, sender| {
-            Some(Input::Map(convert::map_part(&m, &limits).map_err(|e| e.to_string()), MapSender::Publisher(sender)))
+            Some(Input::Map(
+                convert::map_part(&m, &limits).map_err(|e| e.to_string()),
+                MapSender::Publisher(format!("{sender:?}")),
+            ))
         })?;
     }
     Ok(())
@@ -250,10 +254,11 @@ pub fn subscribe_initial_pose(
     gate: &Arc<Mutex<Option<InitialPose>>>,
 ) -> Result<()> {
     let (gate, width) = (gate.clone(), width.clone());
-    let last_sender: Mutex<Option<String>> = Mutex::new(None);
-    read_with_sender(r, &topics.initial_pose, &dds::reliable(10), move |m: msgs::PoseWithCovarianceStamped, sender| {
+    let last_sender: Mutex<Option<Gid>> = Mutex::new(None);
+    read_with_sender(r, &topics.initial_pose, &dds::reliable(10), move |m: msgs::PoseWithCovarianceStamped, gid| {
         match gate_from_msg(&m, None, *lock(&width)) {
             Ok(g) => {
+                let sender = format!("{gid:?}");
                 info(format!(
                     "initial pose from publisher {sender}: gate {:.2} m / {:.1}°",
                     g.radius_m,
@@ -261,10 +266,10 @@ pub fn subscribe_initial_pose(
                 ));
                 let frame_id = m.header.frame_id.trim_start_matches('/').to_owned();
                 *lock(&gate) = Some(InitialPose { frame_id, gate: g });
-                let previous = lock(&last_sender).replace(sender.clone());
-                previous.filter(|p| *p != sender).map(|p| Input::Invalid {
+                let previous = lock(&last_sender).replace(gid);
+                previous.filter(|p| *p != gid).map(|p| Input::Invalid {
                     reason: "initialpose_publisher_changed",
-                    detail: format!("an initial pose from publisher {sender}, the last one's was {p}"),
+                    detail: format!("an initial pose from publisher {sender}, the last one's was {p:?}"),
                 })
             }
             Err(e) => Some(Input::Invalid { reason: "invalid_initialpose", detail: e.to_string() }),
