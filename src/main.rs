@@ -24,6 +24,15 @@ struct Cli {
     command: Command,
 }
 
+/// A bag command's topic remaps, as the node's `--ros-args -r`.
+#[derive(clap::Args)]
+struct Remaps {
+    /// Topic remap `FROM:=TO` (e.g. `/matcher/correspondences:=/my/matches`): read and write
+    /// TO where angle-i2p's default is FROM; repeatable.
+    #[arg(short = 'r', long = "remap", value_name = "FROM:=TO")]
+    rules: Vec<String>,
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Localize every frame of a rosbag2 bag and write the results to a new bag.
@@ -43,10 +52,8 @@ enum Command {
         /// applied after the params file.
         #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
         param: Vec<String>,
-        /// Topic remap `FROM:=TO` (e.g. `/matcher/correspondences:=/my/matches`): read and write
-        /// TO where angle-i2p's default is FROM, as the node's `--ros-args -r`; repeatable.
-        #[arg(short = 'r', long = "remap", value_name = "FROM:=TO")]
-        remap: Vec<String>,
+        #[command(flatten)]
+        remap: Remaps,
         /// Print one line per frame.
         #[arg(long)]
         verbose: bool,
@@ -66,10 +73,8 @@ enum Command {
         /// Also write plots and an `index.html` with the table into this directory.
         #[arg(long)]
         report: Option<PathBuf>,
-        /// Topic remap `FROM:=TO` (e.g. `/matcher/correspondences:=/my/matches`): read and write
-        /// TO where angle-i2p's default is FROM, as the node's `--ros-args -r`; repeatable.
-        #[arg(short = 'r', long = "remap", value_name = "FROM:=TO")]
-        remap: Vec<String>,
+        #[command(flatten)]
+        remap: Remaps,
     },
     /// Write training samples for the learned rejector (features, graphs, θ, labels) from a bag
     /// with ground truth: one folder of `.npy` arrays per frame.
@@ -83,10 +88,8 @@ enum Command {
         /// applied after the params file.
         #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
         param: Vec<String>,
-        /// Topic remap `FROM:=TO` (e.g. `/matcher/correspondences:=/my/matches`): read and write
-        /// TO where angle-i2p's default is FROM, as the node's `--ros-args -r`; repeatable.
-        #[arg(short = 'r', long = "remap", value_name = "FROM:=TO")]
-        remap: Vec<String>,
+        #[command(flatten)]
+        remap: Remaps,
     },
     /// Print the last `/diagnostics` status of each name recorded in a bag (e.g. `node --record`).
     Diagnostics { bag: PathBuf },
@@ -157,7 +160,7 @@ fn main() -> ExitCode {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Replay { bag, out, method, params_file, param, remap, verbose } => {
-            let mut params = resolve_command(params_file.as_deref(), &param, &remap)?;
+            let mut params = resolve_command(params_file.as_deref(), &param, &remap.rules)?;
             if let Some(m) = method {
                 params.localizer.method = m;
             }
@@ -177,7 +180,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Export { bag, out, params_file, param, remap } => {
-            let params = resolve_command(params_file.as_deref(), &param, &remap)?;
+            let params = resolve_command(params_file.as_deref(), &param, &remap.rules)?;
             let report = app::export_samples(&bag, &out, &params)?;
             for s in &report.skipped {
                 eprintln!("warning: {s}");
@@ -191,7 +194,7 @@ fn run(cli: Cli) -> Result<()> {
             print_params_file(&params)
         }
         Command::Eval { bag, est, json, params_file, report, remap } => {
-            let params = resolve_command(params_file.as_deref(), &[] as &[&str], &remap)?;
+            let params = resolve_command(params_file.as_deref(), &[] as &[&str], &remap.rules)?;
             evaluate(&bag, &est, json, &params, report.as_deref())
         }
         Command::Synth { out, preset, config, seed, frames, inlier_ratio, correspondences, map_points, force } => {

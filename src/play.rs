@@ -142,7 +142,7 @@ pub fn play(args: &PlayArgs) -> Result<PlayReport> {
         bail!("--rate must be a positive number, got {}", args.rate);
     }
     let reader = BagReader::open(&args.bag)?;
-    let names = Names::new("angle_i2p_player", &RosArgs::parse(&remap_args(&args.remaps))?);
+    let names = Names::new("angle_i2p_player", &RosArgs::from_cli(&[] as &[&str], &args.remaps)?);
 
     let security = SecurityEnv::from_process(args.enclave.as_deref()).plan()?;
     if let Some(line) = security.describe() {
@@ -174,16 +174,6 @@ pub fn play(args: &PlayArgs) -> Result<PlayReport> {
     std::thread::sleep(Duration::from_secs_f64(args.linger.max(0.0)));
     node.stop_spinner();
     Ok(report)
-}
-
-/// `--remap from:=to` rules as ROS arguments.
-fn remap_args(remaps: &[String]) -> Vec<String> {
-    let mut ros_args: Vec<String> = vec!["--ros-args".into()];
-    for r in remaps {
-        ros_args.push("-r".into());
-        ros_args.push(r.clone());
-    }
-    ros_args
 }
 
 /// One publisher per bag topic (of `--topic` if given) whose type we can publish; the others

@@ -29,8 +29,8 @@ use crate::tf_buffer::TfHistory;
 
 /// Spawns a reader thread that drains `sub`, converting each message and its publisher's GUID
 /// with `convert` (`None`: nothing for the ingest task). (ros2-client's sample streams are not
-/// `Send`, so each reader gets its own small thread; it only decodes and converts, and ends as soon as the ingest side
-/// is gone — a lifecycle cleanup — dropping its subscription.)
+/// `Send`, so each reader gets its own small thread; it only decodes and converts, and ends as
+/// soon as the ingest side is gone — a lifecycle cleanup — dropping its subscription.)
 fn spawn_reader<M, F>(sub: Subscription<M>, topic: String, to: Route, convert: F) -> Result<JoinHandle<()>>
 where
     M: RosMessage + Send + 'static,

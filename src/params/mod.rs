@@ -1,8 +1,8 @@
 //! Every parameter of angle-i2p. The core's ([`LocalizerParams`]: what [`crate::pipeline::Localizer`]
-//! needs) and the edges' ([`AppParams`]: the live node, input limits, the bag commands' topic names) are separate types,
-//! so that the core depends on no edge; in a params file they sit side by side under
-//! `ros__parameters` (`params/angle_i2p.yaml`, the parameters a deployment sets; `params/expert.yaml`,
-//! every parameter), as they always did. [`resolve`] layers the
+//! needs) and the edges' ([`AppParams`]: the live node, input limits, the bag commands' topic
+//! names) are separate types, so that the core depends on no edge; in a params file they sit
+//! side by side under `ros__parameters` (`params/angle_i2p.yaml`, the parameters a deployment
+//! sets; `params/expert.yaml`, every parameter), as they always did. [`resolve`] layers the
 //! sources: defaults < params file < `--ros-args` params files < `-p name:=value`.
 
 mod node;

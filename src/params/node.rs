@@ -69,7 +69,8 @@ pub struct NodeParams {
     /// The frame of the points in `map_path`.
     pub map_frame_id: String,
     /// The gate of an `initialpose` (geometry_msgs/PoseWithCovarianceStamped of the camera in
-    /// the map; see `crate::node::initial_pose`, `~/relocalize` drops it): its half-width in standard deviations of the initial pose's covariance …
+    /// the map; see `crate::node::initial_pose`, `~/relocalize` drops it): its half-width in
+    /// standard deviations of the initial pose's covariance …
     pub initialpose_gate_sigmas: f64,
     /// … but at least this far (metres) …
     pub initialpose_min_radius_m: f64,
