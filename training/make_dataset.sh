@@ -3,7 +3,8 @@
 # (`angle-i2p synth`: hard tier seeds 11–30, extreme tier seeds 11–50 in the default room, and a
 # mix of other sensors, scenes, maps and priors — close-range RGB-D, wide and HD cameras, sparse
 # maps, harsh metric-like priors and affine-invariant disparity, seeds 101–106 each; building-scale
-# scenes of each tier and prior, seeds 101–104) plus the
+# scenes of each tier and prior, seeds 101–104; offices of identical cubicles seen by an Xtion-like
+# camera over maps fused from drifted keyframes, seeds 101–106) plus the
 # shared real *-train bags, validated on the shared *-val bags; every frame exported with
 # `angle-i2p export` (disparity priors read as such).
 #   training/make_dataset.sh [OUT_DIR] [PARAMS_FILE]   (default: training/data, built-in params)
@@ -41,6 +42,11 @@ for seed in 101 102; do synth hard+hd "$seed"; synth extreme+hd+harsh "$seed"; d
 for seed in 101 102 103 104; do
   for preset in building building+harsh extreme+building extreme+building+harsh; do synth "$preset" "$seed"; done
   for preset in building+disparity extreme+building+disparity; do synth "$preset" "$seed" -p depth_kind:=disparity; done
+done
+# Offices: rows of identical cubicles, a 640×480 camera, maps fused from keyframes with SfM-like errors.
+for seed in $(seq 101 106); do
+  for preset in hard+office extreme+office extreme+office+harsh; do synth "$preset" "$seed"; done
+  synth hard+office+disparity "$seed" -p depth_kind:=disparity
 done
 for tier in hard extreme sift; do
   "$bin" export "$shared/redkitchen-$tier-train" --out "$out/train/$tier-train" "${params[@]}"
