@@ -280,10 +280,23 @@ def bench_bag(args, binary: pathlib.Path, bag: pathlib.Path, out_dir: pathlib.Pa
     for r in [*runs, poselib]:
         settle_timing(r, args.rounds)
     tier = report.tier_of(bag_name(bag))
+    oracle_rr = oracle_recall(bag)
     for r in runs:
-        r["failed_criteria"] = report.criteria_failures(tier, r["summary"], poselib["summary"])
+        r["failed_criteria"] = report.criteria_failures(tier, r["summary"], poselib["summary"], oracle_rr)
     return {"bag": str(bag), "name": bag_name(bag), "tier": tier.__dict__ if tier else None, "bag_params": extra,
-            "read_issues": issues, "runs": runs, "poselib": poselib}
+            "read_issues": issues, "runs": runs, "poselib": poselib, "oracle_RR": oracle_rr}
+
+
+def oracle_recall(bag: pathlib.Path) -> float | None:
+    """The single-frame oracle's RR (RANSAC on the true inliers alone) from the bag's
+    baseline.json (the shared bags have one), or None."""
+    path = (bag if bag.is_dir() else bag.parent) / "baseline.json"
+    try:
+        rows = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    oracle = [row["RR"] for name, row in rows.items() if name.startswith("oracle") and "RR" in row]
+    return float(oracle[0]) if oracle else None
 
 
 def synth_bags(args, binary: pathlib.Path) -> list[pathlib.Path]:

@@ -10,14 +10,20 @@ CRITERIA_TEXT = {
     "sift": "RR 100 %, MRE and MTE <= PoseLib's, false poses <= 5 %, median ms <= 1/2 PoseLib's",
     "hard": "RR 100 %, MRE <= PoseLib's, false poses <= 5 %, median ms <= 1/2 PoseLib's",
     "extreme": "RR >= 90 % with the shared prior, >= PoseLib's + 15 points with a realistic prior "
-               "(-harsh, -disparity), false poses <= 5 %, median ms <= 1/2 PoseLib's",
+               "(-harsh, -disparity), either capped at the single-frame oracle's RR - 5 where the bag's "
+               "baseline.json has one, false poses <= 5 %, median ms <= 1/2 PoseLib's",
 }
 REALISTIC_PRIOR_SUFFIXES = ("-harsh", "-disparity")
 EXTREME_SHARED_PRIOR_RR = 90.0
 EXTREME_REALISTIC_MARGIN = 15.0
+# Issue 34: an extreme-tier bar is capped this far below the single-frame oracle's RR (RANSAC on the
+# true inliers alone, `baseline.json`), where the oracle itself is lower: no frame-by-frame
+# method registers what the oracle cannot.
+ORACLE_MARGIN = 5.0
 MAX_TIME_RATIO = 0.5
 MAX_FALSE_POSE_RATE = 5.0  # % of the published poses that are wrong (issue 34): on every tier
 RR_EPSILON = 1e-9  # RR is 100·k/n: compared with a tolerance of float rounding
+ORACLE_ROUNDING = 1e-3  # baseline.json writes RR with 3 decimals (88.333 for 53/60)
 
 
 @dataclasses.dataclass
@@ -60,18 +66,32 @@ def at_most(ours: float | None, theirs: float | None) -> bool:
     return theirs is None or ours <= theirs
 
 
-def criteria_failures(tier: Tier | None, summary: dict, poselib: dict) -> list[str] | None:
-    """The criteria of the bag's tier that a row misses (empty: PASS), or None for a bag of no tier."""
+def extreme_bar(tier: Tier, poselib_rr: float, oracle_rr: float | None) -> tuple[float, str]:
+    """The extreme tier's RR bar and how it reads: 90 % with the shared prior, PoseLib's + 15 points
+    with a realistic one, either capped at the oracle's RR - 5 where that is lower."""
+    if tier.realistic_prior:
+        bar, text = poselib_rr + EXTREME_REALISTIC_MARGIN, f"PoseLib {poselib_rr:.1f} + {EXTREME_REALISTIC_MARGIN:.0f}"
+    else:
+        bar, text = EXTREME_SHARED_PRIOR_RR, f"{EXTREME_SHARED_PRIOR_RR:.0f}"
+    if oracle_rr is not None and oracle_rr - ORACLE_MARGIN < bar:
+        bar, text = oracle_rr - ORACLE_MARGIN, f"oracle {oracle_rr:.1f} - {ORACLE_MARGIN:.0f}"
+    return bar, text
+
+
+def criteria_failures(tier: Tier | None, summary: dict, poselib: dict,
+                      oracle_rr: float | None = None) -> list[str] | None:
+    """The criteria of the bag's tier that a row misses (empty: PASS), or None for a bag of no tier.
+    `oracle_rr`: the single-frame oracle's RR on the bag, where known (baseline.json)."""
     if tier is None:
         return None
     failed = []
     rr, pl_rr = summary["RR"], poselib["RR"]
     if tier.name in ("sift", "hard") and rr < 100.0 - RR_EPSILON:
         failed.append(f"RR {rr:.1f} < 100")
-    if tier.name == "extreme" and not tier.realistic_prior and rr < EXTREME_SHARED_PRIOR_RR - RR_EPSILON:
-        failed.append(f"RR {rr:.1f} < {EXTREME_SHARED_PRIOR_RR:.0f}")
-    if tier.name == "extreme" and tier.realistic_prior and rr < pl_rr + EXTREME_REALISTIC_MARGIN - RR_EPSILON:
-        failed.append(f"RR {rr:.1f} < PoseLib {pl_rr:.1f} + {EXTREME_REALISTIC_MARGIN:.0f}")
+    if tier.name == "extreme":
+        bar, text = extreme_bar(tier, pl_rr, oracle_rr)
+        if rr < bar - ORACLE_ROUNDING:
+            failed.append(f"RR {rr:.1f} < {text}")
     if tier.name in ("sift", "hard") and not at_most(summary.get("MRE"), poselib.get("MRE")):
         failed.append(f"MRE {number(summary.get('MRE'), 3)} > PoseLib {number(poselib.get('MRE'), 3)}")
     if tier.name == "sift" and not at_most(summary.get("MTE"), poselib.get("MTE")):
