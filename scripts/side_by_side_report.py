@@ -36,8 +36,9 @@ class Tier:
 
 
 # Synthetic presets whose name is not a tier but whose matches are one: `synth --preset building`
-# is the hard tier's matcher in a building.
-TIER_OF_PRESET = {"synth-building": "hard"}
+# (`building+harsh`, …) is the hard tier's matcher in a building, whether its bag is named
+# `synth-building…` (side_by_side.py --synth) or after the preset alone.
+TIER_OF_PRESET = {"synth-building": "hard", "building": "hard"}
 
 
 def tier_of(name: str) -> Tier | None:

@@ -18,6 +18,8 @@ def main():
     assert r.tier_of("redkitchen-sift-val") == r.Tier("sift", False)
     assert r.tier_of("synth-hard") == r.Tier("hard", False)
     assert r.tier_of("synth-building") == r.Tier("hard", False)
+    assert r.tier_of("building+harsh") == r.Tier("hard", False)
+    assert r.tier_of("building-disparity") == r.Tier("hard", True)
     assert r.tier_of("office-seq") is None
     poselib = summary(95.0, mre=3.0, mte=0.08, ms=18.0)
     hard = r.Tier("hard", False)
