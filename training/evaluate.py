@@ -12,18 +12,14 @@ import torch
 
 from dataset import load_dir
 from model import AngleI2PNet
-from train import metrics
+from train import metrics_of, scores_of
 
 ENOUGH_TRUE_KEPT = 6
 
 
-def frames_with_enough_kept(model, samples, tau):
+def frames_with_enough_kept(scores, samples, tau):
     """Share of frames whose scores ≥ τ keep at least ENOUGH_TRUE_KEPT labelled inliers."""
-    enough = 0
-    with torch.no_grad():
-        for s in samples:
-            score = model(*[s[k] for k in model.input_names])
-            enough += int(((score >= tau) & (s["labels"] == 1)).sum()) >= ENOUGH_TRUE_KEPT
+    enough = sum(int(((score >= tau) & (s["labels"] == 1)).sum()) >= ENOUGH_TRUE_KEPT for score, s in zip(scores, samples))
     return enough / max(1, len(samples))
 
 
@@ -42,8 +38,9 @@ def main():
     report = {}
     for d in a.dirs:
         samples = load_dir(d)
-        row = metrics(model, samples, a.tau)
-        row["frames_enough_kept"] = frames_with_enough_kept(model, samples, a.tau)
+        scores = scores_of(model, samples)
+        row = metrics_of(scores, samples, a.tau)
+        row["frames_enough_kept"] = frames_with_enough_kept(scores, samples, a.tau)
         row["frames"] = len(samples)
         report[d.rstrip("/").split("/")[-1]] = row
         print(f"{d}: " + json.dumps({k: round(v, 3) for k, v in row.items()}), flush=True)

@@ -90,20 +90,29 @@ def confidence_rank(score):
     return torch.from_numpy((ranks / (n - 1)).astype(np.float32))
 
 
-def metrics(model, samples, tau):
+def scores_of(model, samples):
+    """The model's scores of every sample (no gradient)."""
+    with torch.no_grad():
+        return [model(*[s[k] for k in model.input_names]) for s in samples]
+
+
+def metrics_of(scores, samples, tau):
     """Precision/recall of score ≥ τ, and precision of the top-40 scores, over labelled points."""
     tp = fp = fn = 0
     top = []
-    with torch.no_grad():
-        for s in samples:
-            score = model(*[s[k] for k in model.input_names])
-            y = s["labels"]
-            valid = y >= 0
-            keep = (score >= tau) & valid
-            tp += int(((y == 1) & keep).sum()); fp += int(((y == 0) & keep).sum()); fn += int(((y == 1) & ~keep & valid).sum())
-            order = torch.argsort(-score)[:40]
-            top.append(float((y[order] == 1).float().mean()))
+    for score, s in zip(scores, samples):
+        y = s["labels"]
+        valid = y >= 0
+        keep = (score >= tau) & valid
+        tp += int(((y == 1) & keep).sum()); fp += int(((y == 0) & keep).sum()); fn += int(((y == 1) & ~keep & valid).sum())
+        order = torch.argsort(-score)[:40]
+        top.append(float((y[order] == 1).float().mean()))
     return {"precision": tp / max(1, tp + fp), "recall": tp / max(1, tp + fn), "top40_precision": float(np.mean(top))}
+
+
+def metrics(model, samples, tau):
+    """[`metrics_of`] the model's scores of `samples`."""
+    return metrics_of(scores_of(model, samples), samples, tau)
 
 
 def training_constants(dirs):
