@@ -22,6 +22,7 @@ set -euo pipefail
 cd "$(dirname "$0")"
 epochs=${EPOCHS:-30}
 py=.venv/bin/python
+source ./stage2.sh
 mkdir -p ../models/ablations
 ./make_dataset.sh training/data/angle
 ./make_dataset.sh training/data/distance training/variants/distance.yaml
@@ -41,15 +42,14 @@ train angle ../models/ablations/rooms_only.onnx --matcher-score
 real="data/angle/train/hard-train data/angle/train/extreme-train data/angle/train/sift-train"
 # shellcheck disable=SC2086
 $py train.py --train data/angle/train $real $real $real --val data/angle/val/hard-val data/angle/val/extreme-val \
-  --out ../models/angle_i2p.onnx --epochs 6 --lr 3e-4 --alpha 0.9 --threads 2 --matcher-score \
-  --init ../models/ablations/rooms_only.pt > ../models/angle_i2p.log 2>&1
+  --out ../models/angle_i2p.onnx "${STAGE2_ARGS[@]}" > ../models/angle_i2p.log 2>&1
 $py parity.py --weights ../models/angle_i2p.pt --sample ../models/parity/sample
 # The confidence-rank model: its own dataset (keypoints ranked by the confidence's rank).
 ranked="data/rank/train/hard-train data/rank/train/extreme-train data/rank/train/sift-train"
 # shellcheck disable=SC2086
 $py train.py --train data/rank/train $ranked $ranked $ranked --val data/rank/val/hard-val data/rank/val/extreme-val \
-  --out ../models/ablations/confidence_rank.onnx --epochs 6 --lr 3e-4 --alpha 0.9 --threads 2 --matcher-score \
-  --init ../models/ablations/rooms_only.pt --confidence-rank --augment-confidence > ../models/ablations/confidence_rank.log 2>&1
+  --out ../models/ablations/confidence_rank.onnx "${STAGE2_ARGS[@]}" --confidence-rank --augment-confidence \
+  > ../models/ablations/confidence_rank.log 2>&1
 train angle ../models/ablations/no_global.onnx --matcher-score --no-global
 train distance ../models/ablations/distance_theta.onnx --matcher-score
 train no-scale-alignment ../models/ablations/no_scale_alignment.onnx --matcher-score

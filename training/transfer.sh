@@ -17,6 +17,7 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 py=.venv/bin/python
+source ./stage2.sh
 bin=${ANGLE_I2P_BIN:-../target/release/angle-i2p}
 data=data
 families=("$@")
@@ -56,8 +57,7 @@ for family in "${families[@]}"; do
   if [ ! -f "$model" ]; then
     # shellcheck disable=SC2046,SC2086
     $py train.py --train $(mix_without "$family") $real $real $real --val "$data/heldout/$family" \
-      --out "$model" --epochs 6 --lr 3e-4 --alpha 0.9 --threads 2 --matcher-score \
-      --init ../models/ablations/rooms_only.pt > "${model%.onnx}.log" 2>&1
+      --out "$model" "${STAGE2_ARGS[@]}" > "${model%.onnx}.log" 2>&1
   fi
   for weights in "${WITH:-../models/angle_i2p.pt}" "${model%.onnx}.pt"; do
     echo "== $family, $(basename "$weights" .pt)"
