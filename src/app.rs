@@ -185,6 +185,9 @@ pub fn localization_diagnostics(loc: &Localization) -> DiagnosticArray {
         ("fast_path", loc.fast_path.to_string()),
         ("prior_quality", loc.prior_quality.map_or_else(|| "unknown".to_string(), |q| format!("{q:.3}"))),
     ];
+    if loc.fast_path_on_track {
+        values.push(("fast_path_on_track", "true".to_string()));
+    }
     if loc.last_resort {
         values.push(("last_resort", "true".to_string()));
     }

@@ -253,6 +253,7 @@ fn replay(bag: &Path, out: &Path, params: &AppParams, verbose: bool) -> Result<(
 /// `replay --verbose`: one line per frame.
 fn frame_line(loc: &Localization) -> String {
     let fast_path = match (loc.fast_path, &loc.fast_path_check) {
+        (true, _) if loc.fast_path_on_track => ", settled by the fast path on the track".to_string(),
         (true, _) => ", settled by the fast path".to_string(),
         (false, _) if loc.last_resort => ", pose from the last resort (plain LO-RANSAC)".to_string(),
         (false, Some(c)) => {

@@ -728,3 +728,38 @@ fn tracking_withholds_poses_only_the_prior_confirms_off_the_track() {
         "false poses {fp_tracked:.1} % tracked vs {fp_alone:.1} % alone"
     );
 }
+
+/// Tracking settles frames on the fast path (#35): once the track's prediction has proved
+/// itself, a plain pose that is sure among every match, that the search is confident of and
+/// that lies within the prediction's typical error skips the rejector — on the hard tier's
+/// building walk, whose support (under a third of the matches) never settles a frame alone.
+/// Every frame it settles registers, and so does every frame with the track's settling off.
+#[test]
+fn the_track_settles_hard_frames_on_the_fast_path_where_it_predicts_them() {
+    let scene = generate(&SynthConfig { frames: 30, seed: 5, ..SynthConfig::preset("building").unwrap() });
+    let run = |settle_gate: f64| {
+        let mut params = LocalizerParams { method: Method::Consistency, ..LocalizerParams::default() };
+        params.tracking.settle_gate = settle_gate;
+        let mut localizer = Localizer::new(params).expect("a localizer");
+        localizer.set_map(&scene.map);
+        let mut on_track = 0;
+        for f in &scene.frames {
+            let loc = localizer.process(f);
+            let gt = f.ground_truth.as_ref().expect("ground truth");
+            let (pose, depth) = (gt.pose.as_ref().expect("gt pose"), gt.depth.as_ref().expect("gt depth"));
+            let errors = loc.pose.map(|p| pose_errors(&p, pose, &f.intrinsics, depth));
+            assert!(errors.is_some_and(|e| e.registered()), "frame {}: {errors:?} {:?}", f.stamp, loc.failure);
+            assert!(!loc.fast_path_on_track || loc.fast_path, "settled on the track is settled by the fast path");
+            if loc.fast_path_on_track {
+                assert_eq!(loc.robust_passes, 1, "no rejector, no guided search");
+                assert_eq!(loc.timings.reject_ms, 0.0);
+                on_track += 1;
+            }
+        }
+        on_track
+    };
+    let settled = run(LocalizerParams::default().tracking.settle_gate);
+    eprintln!("{settled} of 30 frames settled on the track");
+    assert!(settled >= 5, "{settled} of 30 frames settled on the track");
+    assert_eq!(run(0.0), 0);
+}

@@ -139,7 +139,8 @@ impl LocalizerParams {
     pub fn validate(&self) -> Result<(), InvalidParam> {
         self.validate_pnp()?;
         self.validate_rejection()?;
-        real("tracking.gate", self.tracking.gate, Range::Positive)
+        real("tracking.gate", self.tracking.gate, Range::Positive)?;
+        real("tracking.settle_gate", self.tracking.settle_gate, Range::NonNegative)
     }
 
     fn validate_pnp(&self) -> Result<(), InvalidParam> {
@@ -274,6 +275,7 @@ mod tests {
             ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = 0.5)),
             ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = f64::INFINITY)),
             ("tracking.gate", Box::new(|p| p.localizer.tracking.gate = 0.0)),
+            ("tracking.settle_gate", Box::new(|p| p.localizer.tracking.settle_gate = -1.0)),
             ("spectral.keep_ratio", Box::new(|p| p.localizer.spectral.keep_ratio = 5.0)),
             ("spectral.max_nodes", Box::new(|p| p.localizer.spectral.max_nodes = 1)),
             ("verify.accept", Box::new(|p| p.localizer.verify.accept = 2.0)),

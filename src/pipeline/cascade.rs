@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::arbiter::CellGrid;
 use super::significance::Significance;
+use super::track::OnTrack;
 use crate::frame::Frame;
 use crate::pnp::{Guidance, PnpParams, PnpSolution, PoseGate, Problem, RansacSearch};
 
@@ -114,28 +115,40 @@ impl CascadeParams {
 
     /// The fast path: the first stages of `plain` (see [`CascadeParams::plain_search`]), whose
     /// solution is taken when it settles the frame (and lies inside `gate`, when there is one),
-    /// else what it measured.
+    /// else what it measured. With a prediction that is evidence (`track`), a pose the search
+    /// is confident of that is sure among every match and agrees with the prediction settles
+    /// the frame too, whatever share of the matches and the view it explains.
     pub fn settle(
         &self,
         frame: &Frame,
         plain: Option<&mut PlainSearch>,
         pnp: &PnpParams,
         gate: Option<&PoseGate>,
-    ) -> Result<PnpSolution, FastPathCheck> {
+        track: Option<&OnTrack>,
+    ) -> Result<FastPathSettled, FastPathCheck> {
         let plain = plain.ok_or(FastPathCheck::NO_POSE)?;
         let budget = self.max_iterations.max(1);
         // A short probe first: a frame whose best support after it is under half the bar is
         // hard (a true ratio at the bar is all but certain to show more by then) and goes on
         // at once; only frames near the bar get the whole budget.
         let probe = self.probe_iterations.clamp(1, budget);
-        let check = match self.stage(frame, plain, pnp, probe, gate)? {
+        let check = match self.stage(frame, plain, pnp, probe, gate, track)? {
             Ok(solution) => return Ok(solution),
             Err(check) => check,
         };
-        if probe == budget || check.inlier_ratio < 0.5 * self.min_inlier_ratio {
+        // A sure pose a prediction is there to confirm goes on too, until the search is
+        // confident of it.
+        let may_confirm = track.is_some() && self.sure(check.log10_nfa);
+        if probe == budget || (check.inlier_ratio < 0.5 * self.min_inlier_ratio && !may_confirm) {
             return Err(check);
         }
-        self.stage(frame, plain, pnp, budget, gate)?
+        self.stage(frame, plain, pnp, budget, gate, track)?
+    }
+
+    /// Whether a pose of this log₁₀ NFA among every match is sure enough to overrule the
+    /// network ([`CascadeParams::confirm_nfa`]).
+    fn sure(&self, log10_nfa: f64) -> bool {
+        self.confirm_nfa > 0.0 && log10_nfa <= self.confirm_nfa.log10()
     }
 
     /// `plain` on from where it stopped to the last resort's budget
@@ -157,7 +170,8 @@ impl CascadeParams {
         pnp: &PnpParams,
         iterations: usize,
         gate: Option<&PoseGate>,
-    ) -> Result<Result<PnpSolution, FastPathCheck>, FastPathCheck> {
+        track: Option<&OnTrack>,
+    ) -> Result<Result<FastPathSettled, FastPathCheck>, FastPathCheck> {
         plain.search.run_until(iterations, self.min_iterations.min(iterations));
         let solution = plain.search.solution().map_err(|_| FastPathCheck::NO_POSE)?;
         let grid = CellGrid::new(&frame.intrinsics, frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64);
@@ -168,14 +182,29 @@ impl CascadeParams {
         let cell_share = supported as f64 / all.max(1) as f64;
         let inside = gate.is_none_or(|g| g.check(&solution.pose).is_ok());
         if inlier_ratio >= self.min_inlier_ratio && cell_share >= self.min_cell_share && inside {
-            return Ok(Ok(solution));
+            return Ok(Ok(FastPathSettled { solution, on_track: false }));
         }
         // Only an unsettled frame reports how sure its best pose is (a settled one is measured
         // once, as every published pose is).
         let (k, th, cell) = (&frame.intrinsics, pnp.threshold_px, pnp.coverage_cell_px);
         let log10_nfa = Significance::of(k, &frame.correspondences, &solution.pose, th, cell).log10_nfa;
+        if inside
+            && self.sure(log10_nfa)
+            && plain.search.confident()
+            && track.is_some_and(|t| t.agrees(k, &frame.correspondences, &solution.pose, th))
+        {
+            return Ok(Ok(FastPathSettled { solution, on_track: true }));
+        }
         Ok(Err(FastPathCheck { inlier_ratio, cell_share, log10_nfa, pose: Some(solution.pose) }))
     }
+}
+
+/// A frame the fast path settled: its pose, and whether the track's prediction confirmed it
+/// (else its support alone settled it).
+#[derive(Clone, Debug)]
+pub struct FastPathSettled {
+    pub solution: PnpSolution,
+    pub on_track: bool,
 }
 
 /// A frame's plain search (its first robust pass), run in stages: the fast path's probe and

@@ -125,6 +125,9 @@ pub struct Localization {
     /// Whether the cascade's budgeted LO-RANSAC settled the frame (no rejection ran), and what
     /// it measured when it did not.
     pub fast_path: bool,
+    /// Whether the track's prediction confirmed the fast path's pose (which its support alone
+    /// did not settle).
+    pub fast_path_on_track: bool,
     pub fast_path_check: Option<FastPathCheck>,
     /// Whether the pose came from the cascade's last resort (plain LO-RANSAC on every
     /// correspondence, after the rejection-guided PnP found no consensus).
@@ -167,6 +170,7 @@ impl Localization {
             scale_shift: None,
             prior_quality: None,
             fast_path: false,
+            fast_path_on_track: false,
             fast_path_check: None,
             last_resort: false,
             log10_nfa: None,

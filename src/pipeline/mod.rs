@@ -15,7 +15,7 @@ use crate::verify::{PriorVerifier, RenderMap};
 use last_choice::Flagged;
 use scratch::FrameScratch;
 use significance::Significance;
-use track::{Prediction, Published, Tracker};
+use track::{OnTrack, Prediction, Published, Tracker};
 
 mod arbiter;
 mod cascade;
@@ -28,7 +28,7 @@ mod scratch;
 mod significance;
 mod track;
 
-pub use cascade::{CascadeParams, FastPathCheck, PlainSearch};
+pub use cascade::{CascadeParams, FastPathCheck, FastPathSettled, PlainSearch};
 pub use localization::{Failure, Localization, Method, StageTimings};
 pub use params::LocalizerParams;
 pub use refine::{FinalRefine, RefineFrame};
@@ -171,7 +171,7 @@ impl Localizer {
         let prediction = if tracking { self.tracker.predict(frame.stamp, frame.odometry.as_ref()) } else { None };
         out.prediction = prediction.map(|p| p.source);
         match self.validate(frame) {
-            Ok(()) => self.localize(frame, &mut out),
+            Ok(()) => self.localize(frame, prediction.as_ref(), &mut out),
             Err(failure) => out.failure = Some(failure),
         }
         // A frame the fast path did not settle predicts the next one: it builds its geometry
@@ -188,12 +188,13 @@ impl Localizer {
     }
 
     /// The fast path (beside the geometry when the last frame predicts this one needs it), then,
-    /// unless it settled the frame, rejection and the guided search.
-    fn localize(&mut self, frame: &Frame, out: &mut Localization) {
+    /// unless it settled the frame, rejection and the guided search. The track's `prediction`
+    /// may confirm the fast path's pose.
+    fn localize(&mut self, frame: &Frame, prediction: Option<&Prediction>, out: &mut Localization) {
         let (plain, geometry_built) = if self.overlap_fast_path {
-            (self.fast_path_beside_geometry(frame, out), true)
+            (self.fast_path_beside_geometry(frame, prediction, out), true)
         } else if self.fast_path_applies() {
-            (self.fast_path(frame, out), false)
+            (self.fast_path(frame, prediction, out), false)
         } else {
             (None, false)
         };
@@ -214,9 +215,11 @@ impl Localizer {
     /// The cascade's first step: the first stages of the plain search on the raw
     /// correspondences, which settle the frame when its support is unambiguous (then `out`
     /// holds the pose and its inliers as the kept set). The search, to go on with.
-    fn fast_path(&self, frame: &Frame, out: &mut Localization) -> Option<PlainSearch> {
+    fn fast_path(&self, frame: &Frame, prediction: Option<&Prediction>, out: &mut Localization) -> Option<PlainSearch> {
         let gate = self.pose_gate.as_ref();
-        let (settled, plain, ms) = fast_path_timed(&self.params.cascade, frame, &self.pnp_params(frame), gate);
+        let track = self.on_track_closely(prediction);
+        let (settled, plain, ms) =
+            fast_path_timed(&self.params.cascade, frame, &self.pnp_params(frame), gate, track.as_ref());
         out.timings.fast_path_ms = ms;
         out.robust_passes += usize::from(plain.is_some());
         self.take_fast_path(frame, settled, out);
@@ -228,13 +231,18 @@ impl Localizer {
     /// after one the fast path did not settle. The outputs are those of the fast path first and
     /// the geometry after; when the fast path settles the frame after all, its geometry was
     /// built for nothing.
-    fn fast_path_beside_geometry(&mut self, frame: &Frame, out: &mut Localization) -> Option<PlainSearch> {
+    fn fast_path_beside_geometry(
+        &mut self,
+        frame: &Frame,
+        prediction: Option<&Prediction>,
+        out: &mut Localization,
+    ) -> Option<PlainSearch> {
         let pnp = self.pnp_params(frame);
-        let (cascade, gate) = (&self.params.cascade, self.pose_gate.as_ref());
+        let (cascade, gate, track) = (&self.params.cascade, self.pose_gate.as_ref(), self.on_track_closely(prediction));
         let geometry = GeometryStep::of(&self.params, self.rejector.is_some());
         let scratch = &mut self.scratch;
         let ((settled, plain, fast_path_ms), geometry_ms) = rayon::join(
-            || fast_path_timed(cascade, frame, &pnp, gate),
+            || fast_path_timed(cascade, frame, &pnp, gate, track.as_ref()),
             || {
                 let t = Instant::now();
                 geometry.build(frame, scratch);
@@ -254,11 +262,14 @@ impl Localizer {
     fn take_fast_path(
         &self,
         frame: &Frame,
-        settled: Result<PnpSolution, FastPathCheck>,
+        settled: Result<FastPathSettled, FastPathCheck>,
         out: &mut Localization,
     ) -> bool {
         let solution = match settled {
-            Ok(solution) => solution,
+            Ok(FastPathSettled { solution, on_track }) => {
+                out.fast_path_on_track = on_track;
+                solution
+            }
             Err(check) => {
                 if check.pose.is_some_and(|pose| !gate::admits(self.pose_gate.as_ref(), &pose)) {
                     gate::note_outside(out, check.log10_nfa);
@@ -405,14 +416,15 @@ impl Localizer {
     }
 
     /// A pose plain LO-RANSAC found on every correspondence (the fast path, the last resort):
-    /// refined on all that agree, its inliers the kept set. The last resort's pose is also
-    /// taken out of a wrong basin next to it; the fast path's is not: its majority-like support
-    /// over half the view leaves no such basin (on the sift bags the step moved MRE by under
-    /// 0.005° and cost 0.5–0.9 ms a frame, a third of the frame).
+    /// refined on all that agree, its inliers the kept set. The last resort's pose, and a fast
+    /// path's the track confirmed, are also taken out of a wrong basin next to it; a fast path's
+    /// settled on its support is not: its majority-like support over half the view leaves no
+    /// such basin (on the sift bags the step moved MRE by under 0.005° and cost 0.5–0.9 ms a
+    /// frame, a third of the frame).
     fn accept_plain(&self, frame: &Frame, mut solution: PnpSolution, out: &mut Localization) {
         if self.params.final_refine.enabled {
             self.refine_on_all(frame, &mut solution);
-            if !out.fast_path {
+            if !out.fast_path || out.fast_path_on_track {
                 self.out_of_basin(frame, &mut solution, Flagged::All);
             }
         }
@@ -453,12 +465,10 @@ impl Localizer {
         let (Some(pose), Some(log10_nfa)) = (out.pose, out.log10_nfa) else { return None };
         let level = self.params.cascade.publish_nfa;
         let meaningful = !(level > 0.0) || log10_nfa <= level.log10();
-        let pnp = self.pnp_params(frame);
-        let depth = prediction
-            .and_then(|_| track::scene_depth(&frame.intrinsics, &frame.correspondences, &pose, pnp.threshold_px));
-        let floor = pnp.threshold_px / frame.intrinsics.fx;
-        let agreement =
-            prediction.zip(depth).and_then(|(p, depth)| p.disagreement(&pose, depth, self.params.tracking.gate, floor));
+        let threshold_px = self.pnp_params(frame).threshold_px;
+        let weighed =
+            self.on_track(prediction).map(|t| t.weigh(&frame.intrinsics, &frame.correspondences, &pose, threshold_px));
+        let (depth, agreement) = (weighed.and_then(|w| w.depth), weighed.and_then(|w| w.agreement));
         let prior_confirms = out.prior_quality.is_some_and(|q| q >= self.params.verify.min_trust);
         let off_track = agreement.filter(|a| !a.agrees());
         if meaningful || (prior_confirms && off_track.is_none()) {
@@ -490,6 +500,18 @@ impl Localizer {
     fn significance(&self, frame: &Frame, pose: &Isometry3<f64>) -> Significance {
         let pnp = self.pnp_params(frame);
         Significance::of(&frame.intrinsics, &frame.correspondences, pose, pnp.threshold_px, pnp.coverage_cell_px)
+    }
+
+    /// The track's `prediction` as poses are weighed against it (its gate).
+    fn on_track<'a>(&self, prediction: Option<&'a Prediction>) -> Option<OnTrack<'a>> {
+        prediction.map(|prediction| OnTrack { prediction, gate: self.params.tracking.gate })
+    }
+
+    /// The track's `prediction` as the fast path weighs its pose against it
+    /// ([`TrackingParams::settle_gate`]).
+    fn on_track_closely<'a>(&self, prediction: Option<&'a Prediction>) -> Option<OnTrack<'a>> {
+        let gate = self.params.tracking.settle_gate;
+        prediction.filter(|_| gate > 0.0).map(|prediction| OnTrack { prediction, gate })
     }
 
     /// The verifier of PnP's hypotheses against the frame's dense prior, when there is a prior,
@@ -551,10 +573,11 @@ fn fast_path_timed(
     frame: &Frame,
     pnp: &PnpParams,
     gate: Option<&PoseGate>,
-) -> (Result<PnpSolution, FastPathCheck>, Option<PlainSearch>, f64) {
+    track: Option<&OnTrack>,
+) -> (Result<FastPathSettled, FastPathCheck>, Option<PlainSearch>, f64) {
     let t = Instant::now();
     let mut plain = cascade.plain_search(frame, pnp);
-    let settled = cascade.settle(frame, plain.as_mut(), pnp, gate);
+    let settled = cascade.settle(frame, plain.as_mut(), pnp, gate, track);
     (settled, plain, ms_since(t))
 }
 

@@ -77,6 +77,13 @@ impl RansacSearch {
         self.search.iterations
     }
 
+    /// Whether its adaptive stopping rule is met: the draws made would have found a consensus
+    /// larger than the best one's with the search's confidence (PROSAC's rule: on the
+    /// best-ranked prefix where that is likeliest, among correspondences ranked by score).
+    pub fn confident(&self) -> bool {
+        self.search.termination.confident(self.search.iterations)
+    }
+
     /// What the search has found so far, refined and measured as [`solve_pnp_ransac`] returns
     /// it; the search may go on after.
     pub fn solution(&mut self) -> Result<PnpSolution, PnpError> {

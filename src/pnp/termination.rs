@@ -89,6 +89,13 @@ impl Termination {
         self.loop_max = max_iterations;
     }
 
+    /// Whether plain RANSAC's adaptive rule (PROSAC's, with scores) is met after `iterations`
+    /// draws: enough samples that a consensus larger than the best one's would have been drawn
+    /// with the search's confidence.
+    pub(crate) fn confident(&self, iterations: usize) -> bool {
+        iterations as f64 >= self.needed
+    }
+
     pub(crate) fn early_accepted(&self) -> bool {
         self.schedule.early_accepted
     }
