@@ -100,8 +100,10 @@ impl CascadeParams {
     /// a pose gate or not: its poses outside the gate are evidence against it
     /// ([`super::gate`]). The fast path runs its first stages; confirming or rescuing a guided
     /// pose goes on with it ([`CascadeParams::search_on`]). `None` when the frame cannot be
-    /// searched at all (too few usable matches, degenerate map points).
-    pub fn plain_search(&self, frame: &Frame, pnp: &PnpParams) -> Option<PlainSearch> {
+    /// searched at all (too few usable matches, degenerate map points). `refined_after`: the
+    /// caller refines a settled pose on every match itself, so the fast path takes the search's
+    /// best as drawn (PnP's own final refinement would be done twice).
+    pub fn plain_search(&self, frame: &Frame, pnp: &PnpParams, refined_after: bool) -> Option<PlainSearch> {
         let matches = Matches::of(frame);
         // One PROSAC schedule over the matcher's order spans every stage: the fast path draws
         // from the best ranked matches, confirming and the last resort go on growing the pool.
@@ -110,7 +112,7 @@ impl CascadeParams {
         let guidance = Guidance { scores: Some(&matches.scores), ..Guidance::default() };
         let problem = Problem { intrinsics: &frame.intrinsics, pixels: &matches.pixels, points: &matches.points };
         let search = RansacSearch::new(&problem, &guidance, &params).ok()?;
-        Some(PlainSearch { search, min_iterations: pnp.min_iterations })
+        Some(PlainSearch { search, min_iterations: pnp.min_iterations, refined_after })
     }
 
     /// The fast path: the first stages of `plain` (see [`CascadeParams::plain_search`]), whose
@@ -173,7 +175,11 @@ impl CascadeParams {
         track: Option<&OnTrack>,
     ) -> Result<Result<FastPathSettled, FastPathCheck>, FastPathCheck> {
         plain.search.run_until(iterations, self.min_iterations.min(iterations));
-        let solution = plain.search.solution().map_err(|_| FastPathCheck::NO_POSE)?;
+        let solution = match plain.refined_after {
+            true => plain.search.best_as_drawn(),
+            false => plain.search.solution(),
+        };
+        let solution = solution.map_err(|_| FastPathCheck::NO_POSE)?;
         let grid = CellGrid::new(&frame.intrinsics, frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64);
         let pixels = frame.correspondences.iter().map(|c| &c.pixel);
         let all = grid.occupied(pixels.clone());
@@ -213,6 +219,9 @@ pub struct PlainSearch {
     search: RansacSearch,
     /// At least this many hypotheses before adaptive stopping, past the fast path (PnP's floor).
     min_iterations: usize,
+    /// Whether the caller refines the fast path's pose on every match (see
+    /// [`CascadeParams::plain_search`]).
+    refined_after: bool,
 }
 
 /// A frame's correspondences split as PnP takes them, with the matcher's scores PROSAC ranks

@@ -217,9 +217,9 @@ impl Localizer {
     /// holds the pose and its inliers as the kept set). The search, to go on with.
     fn fast_path(&self, frame: &Frame, prediction: Option<&Prediction>, out: &mut Localization) -> Option<PlainSearch> {
         let gate = self.pose_gate.as_ref();
-        let track = self.on_track_closely(prediction);
+        let (track, refined) = (self.on_track_closely(prediction), self.params.final_refine.enabled);
         let (settled, plain, ms) =
-            fast_path_timed(&self.params.cascade, frame, &self.pnp_params(frame), gate, track.as_ref());
+            fast_path_timed(&self.params.cascade, frame, &self.pnp_params(frame), gate, track.as_ref(), refined);
         out.timings.fast_path_ms = ms;
         out.robust_passes += usize::from(plain.is_some());
         self.take_fast_path(frame, settled, out);
@@ -239,10 +239,11 @@ impl Localizer {
     ) -> Option<PlainSearch> {
         let pnp = self.pnp_params(frame);
         let (cascade, gate, track) = (&self.params.cascade, self.pose_gate.as_ref(), self.on_track_closely(prediction));
+        let refined = self.params.final_refine.enabled;
         let geometry = GeometryStep::of(&self.params, self.rejector.is_some());
         let scratch = &mut self.scratch;
         let ((settled, plain, fast_path_ms), geometry_ms) = rayon::join(
-            || fast_path_timed(cascade, frame, &pnp, gate, track.as_ref()),
+            || fast_path_timed(cascade, frame, &pnp, gate, track.as_ref(), refined),
             || {
                 let t = Instant::now();
                 geometry.build(frame, scratch);
@@ -410,7 +411,7 @@ impl Localizer {
     /// The frame's plain search, a new one (counted) where no fast path started it.
     fn start_plain(&self, frame: &Frame, plain: &mut Option<PlainSearch>, out: &mut Localization) {
         if plain.is_none() {
-            *plain = self.params.cascade.plain_search(frame, &self.pnp_params(frame));
+            *plain = self.params.cascade.plain_search(frame, &self.pnp_params(frame), self.params.final_refine.enabled);
             out.robust_passes += usize::from(plain.is_some());
         }
     }
@@ -574,9 +575,10 @@ fn fast_path_timed(
     pnp: &PnpParams,
     gate: Option<&PoseGate>,
     track: Option<&OnTrack>,
+    refined_after: bool,
 ) -> (Result<FastPathSettled, FastPathCheck>, Option<PlainSearch>, f64) {
     let t = Instant::now();
-    let mut plain = cascade.plain_search(frame, pnp);
+    let mut plain = cascade.plain_search(frame, pnp, refined_after);
     let settled = cascade.settle(frame, plain.as_mut(), pnp, gate, track);
     (settled, plain, ms_since(t))
 }

@@ -89,6 +89,14 @@ impl RansacSearch {
     pub fn solution(&mut self) -> Result<PnpSolution, PnpError> {
         self.search.solution(&self.params, self.required, self.input_len)
     }
+
+    /// The best hypothesis so far as it was drawn and locally optimised, measured as
+    /// [`RansacSearch::solution`] measures it but without the final refinement: for a caller
+    /// that refines the pose on its own.
+    pub fn best_as_drawn(&mut self) -> Result<PnpSolution, PnpError> {
+        let params = PnpParams { refine: false, ..self.params.clone() };
+        self.search.solution(&params, self.required, self.input_len)
+    }
 }
 
 /// The state of one robust search.
