@@ -511,8 +511,11 @@ impl Localizer {
     /// The track's `prediction` as the fast path weighs its pose against it
     /// ([`TrackingParams::settle_gate`]).
     fn on_track_closely<'a>(&self, prediction: Option<&'a Prediction>) -> Option<OnTrack<'a>> {
+        // A prediction that is not evidence yet confirms nothing: the fast path then searches
+        // no further for it.
         let gate = self.params.tracking.settle_gate;
-        prediction.filter(|_| gate > 0.0).map(|prediction| OnTrack { prediction, gate })
+        let evidence = prediction.filter(|p| gate > 0.0 && p.typical_error.is_some());
+        evidence.map(|prediction| OnTrack { prediction, gate })
     }
 
     /// The verifier of PnP's hypotheses against the frame's dense prior, when there is a prior,
