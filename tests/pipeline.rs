@@ -4,7 +4,7 @@
 use angle_i2p::app;
 use angle_i2p::bag::read_frames;
 use angle_i2p::eval::{inlier_mask, inlier_ratio, pose_errors, summarize, FrameMetrics};
-use angle_i2p::frame::{Frame, MapCloud};
+use angle_i2p::frame::{Correspondence, Frame, MapCloud};
 use angle_i2p::geometry::DepthKind;
 use angle_i2p::params::LocalizerParams;
 use angle_i2p::pipeline::{Failure, Localizer, Method};
@@ -306,6 +306,49 @@ fn easy_frames_end_on_the_fast_path_and_hard_ones_do_not() {
             }
         }
     }
+}
+
+/// Issue #34: a frame settles on the fast path whatever share of the view the map covers. The
+/// map here shows the left 40 % of easy frames only; the matcher still pairs pixels on the right
+/// with map points (the mapped part's: one in two of them is kept), so those matches are all
+/// wrong, and they hold more image cells than the true ones. The right pose's inliers (33–44 % of
+/// the matches) cover the part its matched map points project into, and each frame settles;
+/// counted against every cell holding a match, the first frame's inliers held 0.46 of them, under
+/// the bar of one half, and went the full path.
+#[test]
+fn a_frame_whose_map_covers_part_of_the_view_settles_on_the_fast_path() {
+    let scene = generate(&SynthConfig { frames: 2, seed: 9, ..SynthConfig::preset("easy").unwrap() });
+    let mut localizer = Localizer::new(LocalizerParams { method: Method::Consistency, ..LocalizerParams::default() })
+        .expect("a localizer");
+    localizer.set_map(&scene.map);
+    for frame in &scene.frames {
+        let partial = mapped_on_the_left(frame, 0.4);
+        let loc = localizer.process(&partial);
+        assert!(loc.fast_path, "{:?}", loc.fast_path_check);
+        let gt = partial.ground_truth.as_ref().expect("ground truth");
+        let (truth, depth) = (gt.pose.as_ref().expect("gt pose"), gt.depth.as_ref().expect("gt depth"));
+        let errors = pose_errors(&loc.pose.expect("a pose"), truth, &partial.intrinsics, depth);
+        assert!(errors.registered(), "{errors:?}");
+    }
+}
+
+/// `frame` as a matcher would give it with a map of the left `share` of its view only: each
+/// match on the rest pairs its pixel with a map point of the mapped part, and one in two of them
+/// is kept.
+fn mapped_on_the_left(frame: &Frame, share: f64) -> Frame {
+    let edge = share * frame.intrinsics.width as f64;
+    let mapped: Vec<_> = frame.correspondences.iter().filter(|c| c.pixel.x < edge).map(|c| c.point).collect();
+    let mut partial = frame.clone();
+    partial.correspondences = frame
+        .correspondences
+        .iter()
+        .filter(|c| c.pixel.x >= edge)
+        .step_by(2)
+        .enumerate()
+        .map(|(i, c)| Correspondence { point: mapped[(i * 7919) % mapped.len()], ..*c })
+        .chain(frame.correspondences.iter().filter(|c| c.pixel.x < edge).copied())
+        .collect();
+    partial
 }
 
 /// A frame after one the fast path did not settle builds its geometry beside the fast path (on

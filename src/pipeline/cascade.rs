@@ -30,9 +30,10 @@ pub struct CascadeParams {
     /// The pose's inliers must be at least this share of the correspondences: a majority-like
     /// support that no wrong pose explaining a displaced patch of matches reaches …
     pub min_inlier_ratio: f64,
-    /// … and cover at least this share of the image cells that hold any correspondence, so that
-    /// it is spread over the view; cells are a `grid_columns`-wide grid over the image (their
-    /// size follows the resolution).
+    /// … and cover at least this share of the image cells the map covers under the pose (those
+    /// its matched map points project into), so that it is spread over what the map shows of the
+    /// view, whatever share of the image that is; cells are a `grid_columns`-wide grid over the
+    /// image (their size follows the resolution).
     pub min_cell_share: f64,
     pub grid_columns: usize,
     /// The cascade's last step: a frame whose rejection-guided PnP finds no consensus gets a
@@ -81,6 +82,7 @@ impl Default for CascadeParams {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct FastPathCheck {
     pub inlier_ratio: f64,
+    /// Image cells holding an inlier, of those the map covers under the pose (`Spread`).
     pub cell_share: f64,
     /// How sure its best hypothesis is among every match ([`super::significance`]).
     pub log10_nfa: f64,
@@ -181,11 +183,9 @@ impl CascadeParams {
         };
         let solution = solution.map_err(|_| FastPathCheck::NO_POSE)?;
         let grid = CellGrid::new(&frame.intrinsics, frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64);
-        let pixels = frame.correspondences.iter().map(|c| &c.pixel);
-        let all = grid.occupied(pixels.clone());
-        let supported = grid.occupied(pixels.zip(&solution.inliers).filter(|(_, &i)| i).map(|(p, _)| p));
+        let spread = Spread::of(&grid, frame, &solution);
         let inlier_ratio = solution.num_inliers as f64 / frame.correspondences.len().max(1) as f64;
-        let cell_share = supported as f64 / all.max(1) as f64;
+        let cell_share = spread.share();
         let inside = gate.is_none_or(|g| g.check(&solution.pose).is_ok());
         if inlier_ratio >= self.min_inlier_ratio && cell_share >= self.min_cell_share && inside {
             return Ok(Ok(FastPathSettled { solution, on_track: false }));
@@ -222,6 +222,47 @@ pub struct PlainSearch {
     /// Whether the caller refines the fast path's pose on every match (see
     /// [`CascadeParams::plain_search`]).
     refined_after: bool,
+}
+
+/// How a pose's inliers spread over the part of the view the map covers under it: the image
+/// cells holding an inlier, of the cells the correspondences' map points project into (in front
+/// of the camera, inside the image) or an inlier holds. Where the map covers a part of the view
+/// only, a matcher's wrong matches on the rest still pair its pixels with map points — points of
+/// the mapped part, which the right pose projects there — so the share stays that of the mapped
+/// part, whatever share of the image it is; a wrong pose explaining a displaced patch of matches
+/// projects the other map points all over the view, its patch a few cells of them.
+struct Spread {
+    supported: usize,
+    covered: usize,
+}
+
+impl Spread {
+    fn of(grid: &CellGrid, frame: &Frame, solution: &PnpSolution) -> Self {
+        let k = &frame.intrinsics;
+        let to_camera = solution.pose.inverse();
+        let (width, height) = (k.width as f64, k.height as f64);
+        let mut supported = Vec::new();
+        let mut covered = Vec::with_capacity(frame.correspondences.len());
+        for (c, &inlier) in frame.correspondences.iter().zip(&solution.inliers) {
+            if inlier {
+                supported.push(grid.cell(&c.pixel));
+            }
+            let projected = k.project(&to_camera.transform_point(&c.point));
+            if let Some(px) = projected.filter(|px| (0.0..width).contains(&px.x) && (0.0..height).contains(&px.y)) {
+                covered.push(grid.cell(&px));
+            }
+        }
+        covered.extend_from_slice(&supported);
+        for cells in [&mut supported, &mut covered] {
+            cells.sort_unstable();
+            cells.dedup();
+        }
+        Self { supported: supported.len(), covered: covered.len() }
+    }
+
+    fn share(&self) -> f64 {
+        self.supported as f64 / self.covered.max(1) as f64
+    }
 }
 
 /// A frame's correspondences split as PnP takes them, with the matcher's scores PROSAC ranks
