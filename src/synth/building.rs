@@ -165,7 +165,8 @@ fn published_map(scene: &Scene, config: &SynthConfig, matcher_map: &MapCloud) ->
     points.extend_from_slice(&matcher_map.points);
     let drift = super::drift::MapDrift::of(config);
     let sampled = scene.sample_surfaces_parallel(density, config.cloud_noise_m, mix64(config.seed ^ 0xDE45_1F1E));
-    points.extend(sampled.into_iter().map(|p| drift.apply(&p.cast::<f64>()).cast::<f32>()));
+    let mapped = sampled.into_iter().map(|p| p.cast::<f64>()).filter(|p| config.is_mapped(p));
+    points.extend(mapped.map(|p| drift.apply(&p).cast::<f32>()));
     MapCloud { frame_id: matcher_map.frame_id.clone(), points }
 }
 

@@ -8,10 +8,22 @@ use crate::geometry::Intrinsics;
 /// Tiers accepted by [`SynthConfig::preset`] (the match quality).
 pub const PRESETS: [&str; 4] = ["sift", "hard", "extreme", "easy"];
 /// Modifiers a tier may be joined with by `+` in [`SynthConfig::preset`]: the sensor and scene
-/// (`close`, `hd`, `wide`, `office`), the map (`small-map`, `large-map`) and the prior (`harsh`,
-/// `disparity`).
-pub const PRESET_MODIFIERS: [&str; 11] =
-    ["close", "hd", "wide", "small-map", "large-map", "harsh", "disparity", "building", "office", "kidnap", "odometry"];
+/// (`close`, `hd`, `wide`, `office`), the map (`small-map`, `large-map`, `partial-map`) and the
+/// prior (`harsh`, `disparity`).
+pub const PRESET_MODIFIERS: [&str; 12] = [
+    "close",
+    "hd",
+    "wide",
+    "small-map",
+    "large-map",
+    "partial-map",
+    "harsh",
+    "disparity",
+    "building",
+    "office",
+    "kidnap",
+    "odometry",
+];
 /// Rooms per row of a building, at most.
 pub const MAX_BUILDING_ROOMS: usize = 32;
 /// Map points `synth` makes, at most.
@@ -132,6 +144,9 @@ pub struct SynthConfig {
     /// Odometry on `/tf` (`odom → camera`): each step measured with errors of this share of its
     /// distance and turn, adding up ([`super::odometry::Odometry`]); negative: no odometry.
     pub odometry_drift: f64,
+    /// The share of the room's length (x from 0) the map holds, 1: all of it. Matches on the
+    /// rest cannot be true: the matcher pairs those pixels with map points of the mapped part.
+    pub mapped_share: f64,
 }
 
 impl Default for SynthConfig {
@@ -181,6 +196,7 @@ impl Default for SynthConfig {
             map_rotation_deg: [0.5, 1.5],
             map_offset_m: [0.01, 0.04],
             kidnap_at: 0.0,
+            mapped_share: 1.0,
             odometry_drift: -1.0,
         }
     }
@@ -196,7 +212,9 @@ impl SynthConfig {
     ///   in a 3 × 3 m room, the map and matches with a near sensor's millimetre noise);
     /// * `hd`: 1280×720, f = 900 px, an 8 × 6 m room; `wide`: 640×480, f = 400 px (~77° FOV);
     /// * `small-map`: a sparse map (voxels of 8 cm: a few thousand points); `large-map`: a dense
-    ///   one (voxels of 1 cm);
+    ///   one (voxels of 1 cm); `partial-map`: a map of half the room (x up to half its length),
+    ///   so that it covers all, part or none of a view, and a matcher pairing the pixels it does
+    ///   not cover with points of the part it does;
     /// * `office`: an office seen by an Asus Xtion (640×480, f = 570 px) — rows of identical
     ///   cubicles 1.6–4 m away, a third of the wrong matches on them landing on the next copy,
     ///   and a map fused from 2 m keyframe regions each off by 0.5–1.5° and 1–4 cm, as maps built
@@ -246,6 +264,7 @@ impl SynthConfig {
             "hd" => SynthConfig { room_size: [8.0, 6.0, 3.0], path_radius_m: 1.5, ..resize(self, 1280, 720, 900.0) },
             "wide" => SynthConfig { room_size: [6.0, 5.0, 2.8], ..resize(self, 640, 480, 400.0) },
             "small-map" => SynthConfig { map_voxel_m: 0.08, map_density: 150.0, ..self },
+            "partial-map" => SynthConfig { mapped_share: 0.5, ..self },
             "large-map" => SynthConfig { map_voxel_m: 0.01, map_density: 4000.0, ..self },
             "harsh" => SynthConfig {
                 prior_kind: SynthPriorKind::Harsh,
@@ -295,6 +314,11 @@ impl SynthConfig {
     pub fn intrinsics(&self) -> Intrinsics {
         let c = self.sanitized();
         Intrinsics { fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy, width: c.width, height: c.height }
+    }
+
+    /// Whether the map holds the true surface point `p` (see [`SynthConfig::mapped_share`]).
+    pub fn is_mapped(&self, p: &nalgebra::Point3<f64>) -> bool {
+        self.mapped_share >= 1.0 || p.x <= self.mapped_share * self.room_size[0]
     }
 
     /// A copy with every value brought into a usable range (never fails).
@@ -372,6 +396,7 @@ impl SynthConfig {
             map_rotation_deg: ordered(self.map_rotation_deg, d.map_rotation_deg, 10.0),
             map_offset_m: ordered(self.map_offset_m, d.map_offset_m, 1.0),
             kidnap_at: unit(self.kidnap_at, 0.0),
+            mapped_share: fin(self.mapped_share, 1.0).clamp(0.1, 1.0),
             odometry_drift: match self.odometry_drift {
                 d if d >= 0.0 => d.min(0.5),
                 _ => -1.0,

@@ -49,6 +49,9 @@ struct Candidate {
     inlier_ok: bool,
     /// Whether the pixel sees a solid that repeats identically along x (an office's cubicles).
     repeated: bool,
+    /// Whether the map holds its surface point ([`SynthConfig::mapped_share`]): else it can only
+    /// be a wrong match, to a point of the mapped part.
+    mapped: bool,
 }
 
 /// A uniform index below `len` (> 0).
@@ -176,8 +179,9 @@ fn draw_candidate(inp: &CorrInputs, blobs: &[Point2<f64>], rng: &mut StdRng) -> 
         })
         .unwrap_or(mapped);
     let inlier_point = snapped + gaussian3(rng, c.map_noise_m);
-    let inlier_ok = inp.lift(&pixel).is_some_and(|l| (l - inlier_point).norm() < 0.9 * c.inlier_threshold_m);
-    Some(Candidate { pixel, inlier_point, inlier_ok, repeated: inp.scene.is_repeated(&hit) })
+    let mapped = c.is_mapped(&truth);
+    let inlier_ok = mapped && inp.lift(&pixel).is_some_and(|l| (l - inlier_point).norm() < 0.9 * c.inlier_threshold_m);
+    Some(Candidate { pixel, inlier_point, inlier_ok, repeated: inp.scene.is_repeated(&hit), mapped })
 }
 
 /// 2. Patches, exactly as `patch_outliers`: a random correspondence's pixel, all not yet moved
@@ -236,7 +240,10 @@ fn points_and_scores(
     // repeated solids, so other scenes keep their sequences).
     let repeat_shift = repeats(inp.config)
         .then(|| Vector3::x() * inp.config.repeat_period_m * if rng.random::<bool>() { 1.0 } else { -1.0 });
-    let visible: Vec<usize> = (0..inp.render.points.len()).filter(|&i| inp.render.points[i].x.is_finite()).collect();
+    let config = inp.config;
+    let visible: Vec<usize> = (0..inp.render.points.len())
+        .filter(|&i| inp.render.points[i].x.is_finite() && config.is_mapped(&inp.render.points[i]))
+        .collect();
     let mut correspondences = Vec::with_capacity(cands.len());
     let mut labels = Vec::with_capacity(cands.len());
     for (j, cand) in cands.iter().enumerate() {
@@ -244,12 +251,14 @@ fn points_and_scores(
             None => choice.is_inlier[j],
             Some(_) => cand.inlier_ok && rng.random::<f64>() < choice.base_ratio,
         };
-        // A confused copy looks exactly like the true match: the matcher is as confident in it.
+        // A confused copy (one the map holds) looks exactly like the true match: the matcher is as
+        // confident in it.
         let (point, looks_right) = match repeat_shift {
             _ if base_inlier => (cand.inlier_point, true),
             Some(shift)
                 if patch_of[j].is_none()
                     && cand.repeated
+                    && config.is_mapped(&(cand.inlier_point + shift))
                     && rng.random::<f64>() < inp.config.repeat_outlier_fraction =>
             {
                 (cand.inlier_point + shift, true)
@@ -273,14 +282,14 @@ fn repeats(c: &SynthConfig) -> bool {
     c.repeat_period_m > 0.0 && c.repeat_outlier_fraction > 0.0
 }
 
-/// A wrong point for `cand`: a near miss, a visible surface point or a random map point,
-/// redrawn while it would still pass the ground-truth inlier test.
+/// A wrong point for `cand`: a near miss (of a mapped point), a visible surface point the map
+/// holds or a random map point, redrawn while it would still pass the ground-truth inlier test.
 fn outlier_point(inp: &CorrInputs, visible: &[usize], cand: &Candidate, rng: &mut StdRng) -> Point3<f64> {
     let (c, map) = (inp.config, &inp.map.points);
     let lifted = inp.lift(&cand.pixel);
     let mut p = Point3::origin();
     for _ in 0..30 {
-        let base = if rng.random::<f64>() < c.near_outlier_fraction {
+        let base = if cand.mapped && rng.random::<f64>() < c.near_outlier_fraction {
             // A near miss: the true point displaced by 8–30 cm in a random direction.
             let dir = gaussian3(rng, 1.0);
             let dir = if dir.norm() > 1e-9 { dir.normalize() } else { Vector3::x() };

@@ -179,7 +179,7 @@ fn map_cloud(scene: &Scene, config: &SynthConfig, rng: &mut StdRng) -> MapCloud 
     let drift = drift::MapDrift::of(config);
     let mut seen = HashSet::new();
     let mut points = Vec::with_capacity(raw.len());
-    for p in raw {
+    for p in raw.into_iter().filter(|p| config.is_mapped(p)) {
         let noise = gaussian3(rng, config.cloud_noise_m);
         let q = drift.apply(&p) + noise;
         if config.map_voxel_m > 0.0 {

@@ -442,3 +442,28 @@ fn an_office_has_confused_copies_and_a_drifted_map() {
     assert_eq!(plain.repeat_period_m, 0.0);
     assert_eq!(plain.map_keyframe_m, 0.0);
 }
+
+/// `partial-map`: the map holds the room's first half along x only; a match on the rest pairs
+/// its pixel with a point of that half, so it is never a true match, and frames that see both
+/// halves have fewer true matches than the tier's.
+#[test]
+fn a_partial_map_holds_half_the_room_and_no_true_match_beyond_it() {
+    let config = SynthConfig { frames: 6, seed: 11, ..SynthConfig::preset("sift+partial-map").expect("preset") };
+    assert!((config.mapped_share - 0.5).abs() < 1e-12);
+    let edge = config.mapped_share * config.room_size[0];
+    let scene = generate(&config);
+    // Noise and the fused map's drift move points a few centimetres at most.
+    let beyond = scene.map.points.iter().filter(|p| p.x as f64 > edge + 0.1).count();
+    assert_eq!(beyond, 0, "{} of {} map points beyond x = {edge} m", beyond, scene.map.points.len());
+    let whole = generate(&SynthConfig { mapped_share: 1.0, ..config.clone() });
+    assert!(whole.map.points.len() > scene.map.points.len() * 3 / 2);
+    for frame in &scene.frames {
+        let (pose, depth) = gt(frame);
+        let mask = inlier_mask(frame, config.inlier_threshold_m);
+        for (c, inlier) in frame.correspondences.iter().zip(mask) {
+            let seen = lift_pixel(&frame.intrinsics, &pose, &depth, &c.pixel).expect("a surface point");
+            assert!(!inlier || seen.x <= edge + 0.1, "a true match at x = {:.2} m, beyond the map", seen.x);
+        }
+    }
+    assert!(scene.mean_inlier_ratio() < whole.mean_inlier_ratio());
+}
