@@ -193,6 +193,7 @@ impl LocalizerParams {
         real("cascade.min_cell_share", c.min_cell_share, Range::Unit)?;
         real("cascade.confirm_nfa", c.confirm_nfa, Range::NonNegative)?;
         real("cascade.publish_nfa", c.publish_nfa, Range::NonNegative)?;
+        real("cascade.prior_nfa", c.prior_nfa, Range::NonNegative)?;
         at_least("cascade.grid_columns", c.grid_columns as u64, 1, "at least 1")
     }
 
@@ -269,6 +270,7 @@ mod tests {
             ("cascade.min_iterations", Box::new(|p| p.localizer.cascade.min_iterations = 401)),
             ("cascade.confirm_nfa", Box::new(|p| p.localizer.cascade.confirm_nfa = -1.0)),
             ("cascade.publish_nfa", Box::new(|p| p.localizer.cascade.publish_nfa = f64::NAN)),
+            ("cascade.prior_nfa", Box::new(|p| p.localizer.cascade.prior_nfa = -1.0)),
             ("network.tau", Box::new(|p| p.localizer.network.tau = 1.5)),
             ("network.missing_confidence", Box::new(|p| p.localizer.network.missing_confidence = -0.5)),
             ("verify.min_support_share", Box::new(|p| p.localizer.verify.min_support_share = 1.5)),

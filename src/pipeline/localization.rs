@@ -63,7 +63,9 @@ pub enum Failure {
     #[error("PnP failed: {0}")]
     Pnp(PnpError),
     /// A pose was found but is not published: neither its support among every match is
-    /// meaningful (log₁₀ NFA above the publishing level) nor does the dense prior confirm it.
+    /// meaningful (log₁₀ NFA above the publishing level) nor does the dense prior confirm it
+    /// (its agreement is under `verify.min_trust`, or the support is too weak for any prior to
+    /// confirm: log₁₀ NFA above `cascade.prior_nfa`'s).
     #[error("pose not sure enough to publish: log10 NFA {log10_nfa:.1} among every match, prior agreement {}",
         prior_quality.map_or_else(|| "unknown".to_string(), |q| format!("{q:.2}")))]
     Unsure { log10_nfa: f64, prior_quality: Option<f64> },

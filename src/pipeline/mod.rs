@@ -450,7 +450,8 @@ impl Localizer {
     }
 
     /// A found pose that neither every match makes significant ([`CascadeParams::publish_nfa`])
-    /// nor the prior confirms (`verify.min_trust`) is not published: the frame reports it unsure.
+    /// nor the prior confirms (`verify.min_trust`, for support not left to chance:
+    /// [`CascadeParams::prior_nfa`]) is not published: the frame reports it unsure.
     /// The prior's confirmation stands only where the track's `prediction` (once it has proved
     /// itself) does not put the camera elsewhere ([`track`]). On the three shared extreme bags,
     /// frames alone, this leaves 1.8 / 2.2 / 7.4 % of the published poses wrong (10 / 20 / 15 %
@@ -470,7 +471,8 @@ impl Localizer {
         let weighed =
             self.on_track(prediction).map(|t| t.weigh(&frame.intrinsics, &frame.correspondences, &pose, threshold_px));
         let (depth, agreement) = (weighed.and_then(|w| w.depth), weighed.and_then(|w| w.agreement));
-        let prior_confirms = out.prior_quality.is_some_and(|q| q >= self.params.verify.min_trust);
+        let prior_confirms = out.prior_quality.is_some_and(|q| q >= self.params.verify.min_trust)
+            && self.params.cascade.prior_may_confirm(log10_nfa);
         let off_track = agreement.filter(|a| !a.agrees());
         if meaningful || (prior_confirms && off_track.is_none()) {
             return Some(Published { pose, sure: meaningful, depth, agreement });
