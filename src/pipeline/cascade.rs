@@ -17,7 +17,7 @@ pub struct CascadeParams {
     pub enabled: bool,
     /// Hypotheses drawn at most (adaptive stopping ends earlier on easy frames). 400 draws reach
     /// 99.99 % confidence down to an inlier ratio of ~0.29, the lowest one `min_inlier_ratio`
-    /// accepts.
+    /// accepts; a frame the track settles on weaker support has drawn them all.
     pub max_iterations: usize,
     /// Hypotheses drawn at least before adaptive stopping may end an attempt (PoseLib's and the
     /// guided PnP's floor is 100): an easy frame whose best pose already explains most matches
@@ -132,7 +132,8 @@ impl CascadeParams {
     /// solution is taken when it settles the frame (and lies inside `gate`, when there is one),
     /// else what it measured. With a prediction that is evidence (`track`), a pose the search
     /// is confident of that is sure among every match and agrees with the prediction settles
-    /// the frame too, whatever share of the matches and the view it explains.
+    /// the frame too, whatever share of the matches and the view it explains — judged once the
+    /// search has drawn its whole budget.
     pub fn settle(
         &self,
         frame: &Frame,
@@ -185,9 +186,10 @@ impl CascadeParams {
         plain.search.solution().ok()
     }
 
-    /// One stage of the fast path: the plain search on to `iterations` in all; `Ok(Ok(pose))`
-    /// when its solution settles the frame, `Ok(Err(check))` with what it measured when not (a
-    /// pose outside `gate` never settles it).
+    /// One stage of the fast path: the plain search on to `iterations` in all (to the whole
+    /// budget before the track settles the frame); `Ok(Ok(pose))` when its solution settles the
+    /// frame, `Ok(Err(check))` with what it measured when not (a pose outside `gate` never
+    /// settles it).
     fn stage(
         &self,
         frame: &Frame,
@@ -198,11 +200,30 @@ impl CascadeParams {
         track: Option<&OnTrack>,
     ) -> Result<Result<FastPathSettled, FastPathCheck>, FastPathCheck> {
         plain.search.run_until(iterations, self.min_iterations.min(iterations));
-        let solution = match plain.refined_after {
-            true => plain.search.best_as_drawn(),
-            false => plain.search.solution(),
-        };
-        let solution = solution.map_err(|_| FastPathCheck::NO_POSE)?;
+        let verdict = self.judge(frame, plain, pnp, gate, track)?;
+        let budget = self.max_iterations.max(1);
+        if matches!(verdict, Ok(FastPathSettled { on_track: true, .. })) && plain.search.iterations() < budget {
+            // PROSAC's rule is met on the matcher's best-ranked matches; below the support bar a
+            // larger consensus can still lie among the rest (a pose 5° off explaining 56
+            // matches where the true one explains 63), so the search draws its whole budget
+            // before the track settles the frame, and the frame is judged on what it found.
+            plain.search.run_until(budget, budget);
+            return self.judge(frame, plain, pnp, gate, track);
+        }
+        Ok(verdict)
+    }
+
+    /// Whether the plain search's best pose so far settles the frame: on its support alone, or
+    /// on the track's prediction (see [`CascadeParams::settle`]); else what it measured.
+    fn judge(
+        &self,
+        frame: &Frame,
+        plain: &mut PlainSearch,
+        pnp: &PnpParams,
+        gate: Option<&PoseGate>,
+        track: Option<&OnTrack>,
+    ) -> Result<Result<FastPathSettled, FastPathCheck>, FastPathCheck> {
+        let solution = plain.solution()?;
         let grid = CellGrid::new(&frame.intrinsics, frame.intrinsics.width as f64 / self.grid_columns.max(1) as f64);
         let spread = Spread::of(&grid, frame, &solution);
         let inlier_ratio = solution.num_inliers as f64 / frame.correspondences.len().max(1) as f64;
@@ -255,6 +276,17 @@ pub struct PlainSearch {
 struct Spread {
     supported: usize,
     covered: usize,
+}
+
+impl PlainSearch {
+    /// Its best pose so far: as drawn where the caller refines it, else refined.
+    fn solution(&mut self) -> Result<PnpSolution, FastPathCheck> {
+        let solution = match self.refined_after {
+            true => self.search.best_as_drawn(),
+            false => self.search.solution(),
+        };
+        solution.map_err(|_| FastPathCheck::NO_POSE)
+    }
 }
 
 impl Spread {

@@ -65,10 +65,11 @@ pub enum Failure {
     /// A pose was found but is not published: neither its support among every match is
     /// meaningful (log₁₀ NFA above the publishing level) nor does the dense prior confirm it
     /// (its agreement is under `verify.min_trust`, or the support is too weak for any prior to
-    /// confirm: log₁₀ NFA above `cascade.prior_nfa`'s).
-    #[error("pose not sure enough to publish: log10 NFA {log10_nfa:.1} among every match, prior agreement {}",
-        prior_quality.map_or_else(|| "unknown".to_string(), |q| format!("{q:.2}")))]
-    Unsure { log10_nfa: f64, prior_quality: Option<f64> },
+    /// confirm: log₁₀ NFA above `cascade.prior_nfa`'s, `prior_level`).
+    #[error("pose not sure enough to publish: log10 NFA {log10_nfa:.1} among every match, prior agreement {}{}",
+        prior_quality.map_or_else(|| "unknown".to_string(), |q| format!("{q:.2}")),
+        prior_level.map_or_else(String::new, |l| format!(", too weak a support for the prior to confirm (above {l:.1})")))]
+    Unsure { log10_nfa: f64, prior_quality: Option<f64>, prior_level: Option<f64> },
     /// A pose was found whose support is not meaningful among every match and which the prior
     /// confirms, but the track's prediction, which has proved itself, puts the camera elsewhere
     /// ([`super::track`]).

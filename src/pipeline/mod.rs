@@ -471,8 +471,9 @@ impl Localizer {
         let weighed =
             self.on_track(prediction).map(|t| t.weigh(&frame.intrinsics, &frame.correspondences, &pose, threshold_px));
         let (depth, agreement) = (weighed.and_then(|w| w.depth), weighed.and_then(|w| w.agreement));
-        let prior_confirms = out.prior_quality.is_some_and(|q| q >= self.params.verify.min_trust)
-            && self.params.cascade.prior_may_confirm(log10_nfa);
+        let prior_agrees = out.prior_quality.is_some_and(|q| q >= self.params.verify.min_trust);
+        let prior_may_confirm = self.params.cascade.prior_may_confirm(log10_nfa);
+        let prior_confirms = prior_agrees && prior_may_confirm;
         let off_track = agreement.filter(|a| !a.agrees());
         if meaningful || (prior_confirms && off_track.is_none()) {
             return Some(Published { pose, sure: meaningful, depth, agreement });
@@ -481,7 +482,11 @@ impl Localizer {
             Some(a) if prior_confirms => {
                 Failure::OffTrack { log10_nfa, angle_deg: a.angle.to_degrees(), gate_deg: a.gate.to_degrees() }
             }
-            _ => Failure::Unsure { log10_nfa, prior_quality: out.prior_quality },
+            _ => Failure::Unsure {
+                log10_nfa,
+                prior_quality: out.prior_quality,
+                prior_level: (prior_agrees && !prior_may_confirm).then_some(self.params.cascade.prior_nfa.log10()),
+            },
         });
         out.pose = None;
         out.covariance = None;
