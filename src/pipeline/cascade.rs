@@ -2,6 +2,7 @@
 //! pose is taken when its support is unambiguous, so that easy frames never pay for the prior's
 //! alignment, the network and verification.
 
+use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
 use super::arbiter::CellGrid;
@@ -266,6 +267,17 @@ pub struct PlainSearch {
     refined_after: bool,
 }
 
+impl PlainSearch {
+    /// Its best pose so far: as drawn where the caller refines it, else refined.
+    fn solution(&mut self) -> Result<PnpSolution, FastPathCheck> {
+        let solution = match self.refined_after {
+            true => self.search.best_as_drawn(),
+            false => self.search.solution(),
+        };
+        solution.map_err(|_| FastPathCheck::NO_POSE)
+    }
+}
+
 /// How a pose's inliers spread over the part of the view the map covers under it: the image
 /// cells holding an inlier, of the cells the correspondences' map points project into (in front
 /// of the camera, inside the image) or an inlier holds. Where the map covers a part of the view
@@ -278,39 +290,22 @@ struct Spread {
     covered: usize,
 }
 
-impl PlainSearch {
-    /// Its best pose so far: as drawn where the caller refines it, else refined.
-    fn solution(&mut self) -> Result<PnpSolution, FastPathCheck> {
-        let solution = match self.refined_after {
-            true => self.search.best_as_drawn(),
-            false => self.search.solution(),
-        };
-        solution.map_err(|_| FastPathCheck::NO_POSE)
-    }
-}
-
 impl Spread {
     fn of(grid: &CellGrid, frame: &Frame, solution: &PnpSolution) -> Self {
         let k = &frame.intrinsics;
         let to_camera = solution.pose.inverse();
         let (width, height) = (k.width as f64, k.height as f64);
-        let mut supported = Vec::new();
-        let mut covered = Vec::with_capacity(frame.correspondences.len());
-        for (c, &inlier) in frame.correspondences.iter().zip(&solution.inliers) {
-            if inlier {
-                supported.push(grid.cell(&c.pixel));
-            }
-            let projected = k.project(&to_camera.transform_point(&c.point));
-            if let Some(px) = projected.filter(|px| (0.0..width).contains(&px.x) && (0.0..height).contains(&px.y)) {
-                covered.push(grid.cell(&px));
-            }
-        }
-        covered.extend_from_slice(&supported);
-        for cells in [&mut supported, &mut covered] {
-            cells.sort_unstable();
-            cells.dedup();
-        }
-        Self { supported: supported.len(), covered: covered.len() }
+        let inliers: Vec<&Point2<f64>> =
+            frame.correspondences.iter().zip(&solution.inliers).filter(|(_, &i)| i).map(|(c, _)| &c.pixel).collect();
+        let projected: Vec<Point2<f64>> = frame
+            .correspondences
+            .iter()
+            .filter_map(|c| k.project(&to_camera.transform_point(&c.point)))
+            .filter(|px| (0.0..width).contains(&px.x) && (0.0..height).contains(&px.y))
+            .collect();
+        let supported = grid.occupied(inliers.iter().copied());
+        let covered = grid.occupied(projected.iter().chain(inliers.iter().copied()));
+        Self { supported, covered }
     }
 
     fn share(&self) -> f64 {
