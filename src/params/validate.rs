@@ -179,6 +179,12 @@ impl LocalizerParams {
         real("final_refine.min_loss_scale_px", f.min_loss_scale_px, Range::Positive)?;
         at_least("final_refine.rounds", f.rounds as u64, 1, "at least 1")?;
         real("final_refine.switch_margin", f.switch_margin, Range::AtLeastOne)?;
+        real("covariance.map_error_deg", self.covariance.map_error_deg, Range::NonNegative)?;
+        let regions = self.covariance.map_error_regions;
+        if !(1..=crate::pnp::MapError::MAX_REGIONS).contains(&regions) {
+            let range = "1 to 64 (regions per image axis)";
+            return Err(InvalidParam { key: "covariance.map_error_regions", value: regions.to_string(), range });
+        }
         let c = &self.cascade;
         at_least("cascade.max_iterations", c.max_iterations as u64, 1, "at least 1")?;
         at_least("cascade.probe_iterations", c.probe_iterations as u64, 1, "at least 1")?;
@@ -276,6 +282,9 @@ mod tests {
             ("verify.min_support_share", Box::new(|p| p.localizer.verify.min_support_share = 1.5)),
             ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = 0.5)),
             ("final_refine.switch_margin", Box::new(|p| p.localizer.final_refine.switch_margin = f64::INFINITY)),
+            ("covariance.map_error_deg", Box::new(|p| p.localizer.covariance.map_error_deg = -1.0)),
+            ("covariance.map_error_regions", Box::new(|p| p.localizer.covariance.map_error_regions = 0)),
+            ("covariance.map_error_regions", Box::new(|p| p.localizer.covariance.map_error_regions = 65)),
             ("tracking.gate", Box::new(|p| p.localizer.tracking.gate = 0.0)),
             ("tracking.settle_gate", Box::new(|p| p.localizer.tracking.settle_gate = -1.0)),
             ("spectral.keep_ratio", Box::new(|p| p.localizer.spectral.keep_ratio = 5.0)),

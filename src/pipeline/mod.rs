@@ -27,12 +27,14 @@ mod refine;
 mod scratch;
 mod significance;
 mod track;
+mod uncertainty;
 
 pub use cascade::{CascadeParams, FastPathCheck, FastPathSettled, PlainSearch};
 pub use localization::{Failure, Localization, Method, StageTimings};
 pub use params::LocalizerParams;
 pub use refine::{FinalRefine, RefineFrame};
 pub use track::{PredictionSource, TrackState, TrackingParams};
+pub use uncertainty::CovarianceParams;
 
 /// Why a localizer cannot be set up for its method.
 #[derive(Debug, Clone, thiserror::Error)]
@@ -442,7 +444,9 @@ impl Localizer {
     /// every match of `frame`.
     fn accept(&self, frame: &Frame, solution: &PnpSolution, verifier: Option<&PriorVerifier>, out: &mut Localization) {
         out.pose = Some(solution.pose);
-        out.covariance = Some(solution.covariance);
+        let threshold_px = self.pnp_params(frame).threshold_px;
+        out.covariance =
+            Some(self.params.covariance.published(frame, &solution.pose, &solution.covariance, threshold_px));
         out.num_inliers = solution.num_inliers;
         out.pnp_iterations += solution.iterations;
         out.prior_quality = verifier.map(|v| v.agreement(&solution.pose).in_view_share(self.params.verify.min_view));

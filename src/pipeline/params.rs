@@ -4,7 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{CascadeParams, FinalRefine, Method, TrackingParams};
+use super::{CascadeParams, CovarianceParams, FinalRefine, Method, TrackingParams};
 use crate::consistency::ScaleShiftParams;
 use crate::geometry::DepthKind;
 use crate::pnp::PnpParams;
@@ -34,6 +34,8 @@ pub struct LocalizerParams {
     pub verify: VerifyParams,
     /// Last refinement on every correspondence agreeing with the pose.
     pub final_refine: FinalRefine,
+    /// What the published covariance counts beside the inliers' pixel noise: the map's own error.
+    pub covariance: CovarianceParams,
     /// Frames as a stream: the poses published before predict the next ([`super::track`]).
     pub tracking: TrackingParams,
     /// Seed of every random choice (results are reproducible).

@@ -2,8 +2,9 @@
 //! into a better one: LO-RANSAC's local optimisation, and the final refinement into a
 //! [`PnpSolution`].
 
+use super::covariance::covariance;
 use super::hypothesis::{Bound, Hypothesis};
-use super::lm::{covariance, lm_refine, Loss};
+use super::lm::{lm_refine, Loss};
 use super::ops::Positions;
 use super::scorer::Scorer;
 use super::{MapToCamera, PnpError, PnpParams, PnpSolution, RobustLoss};

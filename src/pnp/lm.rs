@@ -1,13 +1,13 @@
 //! Levenberg–Marquardt refinement of the pixel reprojection error over SE(3), with IRLS robust
-//! weights, and the Gauss–Newton pose covariance.
+//! weights (the pose's covariance: [`super::covariance`]).
 //!
 //! The update is a left perturbation of the map-to-camera transform:
 //! `x_cam' = exp([ω]×)·x_cam + δt`, so `∂x_cam/∂ω = −[x_cam]×`, `∂x_cam/∂δt = I`.
 
-use super::ops::{check_basic, checked_pairs, finite_pairs, reproj_err2, Cam, MIN_DEPTH};
+use super::ops::{checked_pairs, reproj_err2, Cam, MIN_DEPTH};
 use super::{MapToCamera, PnpError, RobustLoss};
 use crate::geometry::Intrinsics;
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, SymmetricEigen, Vector2, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, Vector2, Vector3, Vector6};
 
 /// Robust loss `ρ(s)` of a squared residual `s` and its derivative `ρ'(s)` (the IRLS weight).
 #[derive(Clone, Copy, Debug)]
@@ -169,60 +169,6 @@ pub(crate) fn lm_refine(
     (pose, lin.cost, it)
 }
 
-/// Gauss–Newton covariance of the camera-to-map pose over the points `idx`, order
-/// `(x, y, z, rot x, rot y, rot z)`: `σ²·(JᵀJ)⁻¹` with `σ² = Σ|r|² / (2n − 6)`.
-/// `None` with fewer than 4 points in front of the camera.
-pub(crate) fn covariance(
-    cam: &Cam,
-    px: &[Vector2<f64>],
-    pw: &[Vector3<f64>],
-    idx: &[usize],
-    pose: &MapToCamera,
-) -> Option<Matrix6<f64>> {
-    let r = pose.rotation;
-    let mut h = Matrix6::zeros();
-    let mut sq = 0.0;
-    let mut n = 0usize;
-    for &i in idx {
-        let x = r * pw[i] + pose.translation;
-        if !(x.z > MIN_DEPTH) {
-            continue;
-        }
-        let iz = 1.0 / x.z;
-        let ru = cam.fx * x.x * iz + cam.cx - px[i].x;
-        let rv = cam.fy * x.y * iz + cam.cy - px[i].y;
-        sq += ru * ru + rv * rv;
-        n += 1;
-        // ∂x_cam/∂(δp, δθ) = [−R | [x_cam]× R] for p' = p + δp, R_map_cam' = exp([δθ]×) R_map_cam.
-        let xr = x.cross_matrix() * r;
-        let du = Vector3::new(cam.fx * iz, 0.0, -cam.fx * x.x * iz * iz);
-        let dv = Vector3::new(0.0, cam.fy * iz, -cam.fy * x.y * iz * iz);
-        let (up, ut) = (-(r.transpose() * du), xr.transpose() * du);
-        let (vp, vt) = (-(r.transpose() * dv), xr.transpose() * dv);
-        let ju = Vector6::new(up.x, up.y, up.z, ut.x, ut.y, ut.z);
-        let jv = Vector6::new(vp.x, vp.y, vp.z, vt.x, vt.y, vt.z);
-        h += ju * ju.transpose() + jv * jv.transpose();
-    }
-    if n < 4 {
-        return None;
-    }
-    let sigma2 = sq / (2 * n - 6) as f64;
-    if !(h.iter().all(|v| v.is_finite()) && sq.is_finite()) {
-        return None;
-    }
-    let eig = SymmetricEigen::try_new(h, f64::EPSILON, 1000)?;
-    let lmax = eig.eigenvalues.amax();
-    if !(lmax.is_finite() && lmax > 0.0) {
-        return None;
-    }
-    // Unobservable directions get a huge (but finite) variance instead of a panic or NaN.
-    let floor = lmax * 1e-14;
-    let inv = Vector6::from_iterator(eig.eigenvalues.iter().map(|&l| 1.0 / l.max(floor)));
-    let cov = eig.eigenvectors * Matrix6::from_diagonal(&inv) * eig.eigenvectors.transpose() * sigma2;
-    let cov = (cov + cov.transpose()) * 0.5;
-    cov.iter().all(|v| v.is_finite()).then_some(cov)
-}
-
 /// Options of [`refine_pose`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RefineOptions {
@@ -291,21 +237,4 @@ pub(crate) fn refine_all(
     }
     let rmse_px = if n > 0 { (sq / n as f64).sqrt() } else { f64::INFINITY };
     RefineResult { pose: pose.to_camera_to_map(), cost, rmse_px, iterations }
-}
-
-/// Covariance of a camera-to-map pose given its (inlier) correspondences; see the module doc for
-/// the parameterisation. Needs ≥ 4 finite correspondences in front of the camera.
-pub fn pose_covariance(
-    intrinsics: &Intrinsics,
-    pixels: &[Point2<f64>],
-    points: &[Point3<f64>],
-    pose: &Isometry3<f64>,
-) -> Result<Matrix6<f64>, PnpError> {
-    check_basic(intrinsics, pixels.len(), points.len())?;
-    let pairs = finite_pairs(pixels, points);
-    let (px, pw) = (pairs.pixels, pairs.points);
-    let idx: Vec<usize> = (0..px.len()).collect();
-    let m2c = MapToCamera::from_camera_to_map(pose);
-    covariance(&Cam::new(intrinsics), &px, &pw, &idx, &m2c)
-        .ok_or(PnpError::TooFewPoints { usable: px.len(), required: 4 })
 }

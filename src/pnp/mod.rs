@@ -24,6 +24,7 @@
 // `!(x > y)` is deliberate throughout: it is true for NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+mod covariance;
 mod coverage;
 mod epnp;
 mod evaluator;
@@ -45,9 +46,10 @@ use thiserror::Error;
 
 use crate::geometry::{Intrinsics, PriorSpace};
 
+pub use covariance::{map_error_covariance, pose_covariance, MapError};
 pub use epnp::epnp;
 pub use gate::{GateMiss, PoseGate};
-pub use lm::{pose_covariance, refine_pose, RefineOptions, RefineResult};
+pub use lm::{refine_pose, RefineOptions, RefineResult};
 pub use nonminimal::solve_pnp_nonminimal;
 pub use p3p::{p3p, P3pSolutions};
 pub use ransac::{solve_pnp_ransac, RansacSearch};

@@ -402,3 +402,59 @@ fn a_search_run_in_stages_is_the_search_run_at_once() {
     assert_eq!(staged.iterations, at_once.iterations);
     assert!(iterations.windows(2).all(|w| w[0] <= w[1]), "{iterations:?}");
 }
+
+#[test]
+fn map_error_covariance_matches_monte_carlo_spread_of_a_shared_error() {
+    // Fixed geometry; in each run every region of the view (3 × 3) shifts its pixels together by
+    // an angle drawn with σ_map per axis, as points fused from one keyframe are off together.
+    let mut rng = WyRand::new(11);
+    let pose = random_pose(&mut rng);
+    let (clean, pw) = visible(&mut rng, &pose, 90, 0.0);
+    let map_error = MapError { angle_rad: 0.5f64.to_radians(), regions: 3 };
+    let predicted = map_error_covariance(&k(), &clean, &pw, &pose, &map_error).unwrap();
+    let region = |p: &Point2<f64>| ((p.y / 480.0 * 3.0) as usize).min(2) * 3 + ((p.x / 640.0 * 3.0) as usize).min(2);
+    let (runs, mut errs) = (300, Vec::new());
+    for _ in 0..runs {
+        let shifts: Vec<(f64, f64)> = (0..9)
+            .map(|_| (normal(&mut rng) * k().fx * map_error.angle_rad, normal(&mut rng) * k().fy * map_error.angle_rad))
+            .collect();
+        let px: Vec<Point2<f64>> = clean
+            .iter()
+            .map(|p| {
+                let (du, dv) = shifts[region(p)];
+                Point2::new(p.x + du, p.y + dv)
+            })
+            .collect();
+        let s = solve_pnp_nonminimal(&k(), &px, &pw, &RefineOptions::default()).unwrap();
+        let d = s.pose.translation.vector - pose.translation.vector;
+        let dr = (s.pose.rotation * pose.rotation.inverse()).scaled_axis();
+        errs.push(nalgebra::Vector6::new(d.x, d.y, d.z, dr.x, dr.y, dr.z));
+    }
+    for i in 0..6 {
+        let emp = errs.iter().map(|e| e[i] * e[i]).sum::<f64>() / runs as f64;
+        let ratio = emp / predicted[(i, i)];
+        assert!((0.6..1.6).contains(&ratio), "axis {i}: empirical {emp} predicted {} ratio {ratio}", predicted[(i, i)]);
+    }
+}
+
+#[test]
+fn map_error_shrinks_over_the_regions_the_inliers_cover_and_is_zero_when_off() {
+    let mut rng = WyRand::new(12);
+    let pose = random_pose(&mut rng);
+    let (px, pw) = visible(&mut rng, &pose, 400, 0.0);
+    let map_error = MapError { angle_rad: 1f64.to_radians(), regions: 3 };
+    let spread = map_error_covariance(&k(), &px, &pw, &pose, &map_error).unwrap();
+    assert!(is_psd(&spread) && (spread - spread.transpose()).amax() <= 1e-12 * spread.amax());
+    // The same number of inliers crowded into the top-left region: one shared error, no averaging.
+    let (corner_px, corner_pw): (Vec<_>, Vec<_>) =
+        px.iter().zip(&pw).filter(|(p, _)| p.x < 640.0 / 3.0 && p.y < 160.0).map(|(p, w)| (*p, *w)).unzip();
+    assert!(corner_px.len() >= 20, "{}", corner_px.len());
+    let corner = map_error_covariance(&k(), &corner_px, &corner_pw, &pose, &map_error).unwrap();
+    let rotation = |c: &nalgebra::Matrix6<f64>| c[(3, 3)] + c[(4, 4)] + c[(5, 5)];
+    assert!(rotation(&corner) > 1.5 * rotation(&spread), "{} vs {}", rotation(&corner), rotation(&spread));
+    // It does not shrink with the number of inliers: a tenth of them, about the same.
+    let few = map_error_covariance(&k(), &px[..40], &pw[..40], &pose, &map_error).unwrap();
+    assert!((0.5..2.5).contains(&(rotation(&few) / rotation(&spread))), "{} vs {}", rotation(&few), rotation(&spread));
+    let off = MapError { angle_rad: 0.0, ..map_error };
+    assert_eq!(map_error_covariance(&k(), &px, &pw, &pose, &off).unwrap(), nalgebra::Matrix6::zeros());
+}
