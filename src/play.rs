@@ -13,7 +13,7 @@ use ros2_client::{Node, Publisher, QosProfile};
 use crate::bag::{BagMessage, BagReader};
 use crate::msgs::{self, from_cdr, RosMessage};
 use crate::node::dds;
-use crate::node::security::SecurityEnv;
+use crate::node::security::SecurityPlan;
 use crate::params::{Names, RosArgs};
 
 #[derive(clap::Args, Clone, Debug)]
@@ -144,10 +144,7 @@ pub fn play(args: &PlayArgs) -> Result<PlayReport> {
     let reader = BagReader::open(&args.bag)?;
     let names = Names::new("angle_i2p_player", &RosArgs::from_cli(&[] as &[&str], &args.remaps)?);
 
-    let security = SecurityEnv::from_process(args.enclave.as_deref()).plan()?;
-    if let Some(line) = security.describe() {
-        eprintln!("[angle_i2p_player] {line}");
-    }
+    let security = SecurityPlan::for_process(args.enclave.as_deref(), "angle_i2p_player")?;
     let context = dds::context_for(&security)?;
     let mut node = dds::node(&context, "/", &format!("angle_i2p_player_{}", std::process::id()))?;
     let _spinner = dds::spawn_spinner(&mut node)?;

@@ -92,10 +92,7 @@ pub fn run(config: NodeConfig) -> anyhow::Result<()> {
     if let Some(level) = args.log_level {
         log::set_log_level(level);
     }
-    let security = security::SecurityEnv::from_process(args.enclave.as_deref()).plan()?;
-    if let Some(line) = security.describe() {
-        eprintln!("[angle_i2p] {line}");
-    }
+    let security = security::SecurityPlan::for_process(args.enclave.as_deref(), "angle_i2p")?;
     if let Some(note) = resolved.node.map_source.takes_topic().then(dds::receive_buffer_note).flatten() {
         eprintln!("[angle_i2p] note: {note}");
     }

@@ -86,6 +86,16 @@ impl SecurityEnv {
 }
 
 impl SecurityPlan {
+    /// The plan of this process (its environment and `--enclave` argument), its start line
+    /// logged as `participant`: the node and `play` set up security the same way.
+    pub fn for_process(enclave_arg: Option<&str>, participant: &str) -> Result<Self, SecurityError> {
+        let plan = SecurityEnv::from_process(enclave_arg).plan()?;
+        if let Some(line) = plan.describe() {
+            eprintln!("[{participant}] {line}");
+        }
+        Ok(plan)
+    }
+
     /// The line a participant logs at start for this plan (none when security is off and no
     /// enclave was named).
     pub fn describe(&self) -> Option<String> {
