@@ -152,13 +152,23 @@ fn covariance_matches_monte_carlo_spread() {
             clean.iter().map(|p| Point2::new(p.x + normal(&mut rng), p.y + normal(&mut rng))).collect();
         let s = solve_pnp_nonminimal(&k(), &px, &pw, &RefineOptions::default()).unwrap();
         predicted += pose_covariance(&k(), &px, &pw, &s.pose).unwrap() / runs as f64;
-        let d = s.pose.translation.vector - pose.translation.vector;
-        // Rotation error in the map frame: R_est = exp([δθ]) R_true.
-        let dr = (s.pose.rotation * pose.rotation.inverse()).scaled_axis();
-        errs.push(nalgebra::Vector6::new(d.x, d.y, d.z, dr.x, dr.y, dr.z));
+        errs.push(covariance_error(&s.pose, &pose));
     }
+    assert_spread_matches(&errs, &predicted);
+}
+
+/// The error of `est` against `truth` in the covariances' parameterisation: position, and
+/// rotation in the map frame (`R_est = exp([δθ]×)·R_true`).
+fn covariance_error(est: &Isometry3<f64>, truth: &Isometry3<f64>) -> nalgebra::Vector6<f64> {
+    let d = est.translation.vector - truth.translation.vector;
+    let dr = (est.rotation * truth.rotation.inverse()).scaled_axis();
+    nalgebra::Vector6::new(d.x, d.y, d.z, dr.x, dr.y, dr.z)
+}
+
+/// Each axis's empirical variance over `errs` is within 0.6–1.6× the `predicted` one.
+fn assert_spread_matches(errs: &[nalgebra::Vector6<f64>], predicted: &nalgebra::Matrix6<f64>) {
     for i in 0..6 {
-        let emp = errs.iter().map(|e| e[i] * e[i]).sum::<f64>() / runs as f64;
+        let emp = errs.iter().map(|e| e[i] * e[i]).sum::<f64>() / errs.len() as f64;
         let ratio = emp / predicted[(i, i)];
         assert!((0.6..1.6).contains(&ratio), "axis {i}: empirical {emp} predicted {} ratio {ratio}", predicted[(i, i)]);
     }
@@ -426,15 +436,9 @@ fn map_error_covariance_matches_monte_carlo_spread_of_a_shared_error() {
             })
             .collect();
         let s = solve_pnp_nonminimal(&k(), &px, &pw, &RefineOptions::default()).unwrap();
-        let d = s.pose.translation.vector - pose.translation.vector;
-        let dr = (s.pose.rotation * pose.rotation.inverse()).scaled_axis();
-        errs.push(nalgebra::Vector6::new(d.x, d.y, d.z, dr.x, dr.y, dr.z));
+        errs.push(covariance_error(&s.pose, &pose));
     }
-    for i in 0..6 {
-        let emp = errs.iter().map(|e| e[i] * e[i]).sum::<f64>() / runs as f64;
-        let ratio = emp / predicted[(i, i)];
-        assert!((0.6..1.6).contains(&ratio), "axis {i}: empirical {emp} predicted {} ratio {ratio}", predicted[(i, i)]);
-    }
+    assert_spread_matches(&errs, &predicted);
 }
 
 #[test]
