@@ -91,10 +91,11 @@ pub fn map_error_covariance(
     map_error: &MapError,
 ) -> Result<Matrix6<f64>, PnpError> {
     check_basic(intrinsics, pixels.len(), points.len())?;
-    let too_few = || PnpError::TooFewPoints { usable: pixels.len(), required: 4 };
+    let pairs = finite_pairs(pixels, points);
+    let too_few = || PnpError::TooFewPoints { usable: pairs.pixels.len(), required: 4 };
     let (cam, m2c) = (Cam::new(intrinsics), MapToCamera::from_camera_to_map(pose));
     let regions = map_error.regions.clamp(1, MapError::MAX_REGIONS);
-    let region_of = |p: &Point2<f64>| {
+    let region_of = |p: &Vector2<f64>| {
         let cell =
             |v: f64, size: u32| ((v / size.max(1) as f64 * regions as f64).floor().max(0.0) as usize).min(regions - 1);
         cell(p.y, intrinsics.height) * regions + cell(p.x, intrinsics.width)
@@ -102,11 +103,8 @@ pub fn map_error_covariance(
     let mut h = Matrix6::zeros();
     let mut sums = vec![(Vector6::zeros(), Vector6::zeros()); regions * regions];
     let mut n = 0usize;
-    for (pixel, point) in pixels.iter().zip(points) {
-        if !(pixel.coords.iter().all(|v| v.is_finite())) {
-            continue;
-        }
-        let Some(jacobian) = PointJacobian::at(&cam, &m2c, &point.coords) else { continue };
+    for (pixel, point) in pairs.pixels.iter().zip(&pairs.points) {
+        let Some(jacobian) = PointJacobian::at(&cam, &m2c, point) else { continue };
         h += jacobian.information();
         let sum = &mut sums[region_of(pixel)];
         sum.0 += jacobian.u;
